@@ -1,0 +1,31 @@
+"""Shared fixtures. Real-data tests skip without ../shared (or $RESTI_SHARED), unless CI=true."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from resti_lib import paths
+
+
+def _require(path: Path, what: str) -> Path:
+    if path.exists():
+        return path
+    msg = f"{what} not found at {path} (set RESTI_SHARED to the folder holding data/)"
+    if os.environ.get("CI", "").lower() == "true":
+        pytest.fail(f"CI=true requires the shared data: {msg}")
+    pytest.skip(msg)
+
+
+@pytest.fixture(scope="session")
+def resti_v5_dir() -> Path:
+    """The public ReSTI v5 release (real data)."""
+    return _require(paths.resti_v5_dir(), "ReSTI v5 release")
+
+
+@pytest.fixture(scope="session")
+def real_vehicle_pose() -> Path:
+    """The real Waymo v2 vehicle_pose parquet (199 frames)."""
+    return _require(paths.real_waymo_vehicle_pose(), "real Waymo v2 vehicle_pose file")
