@@ -1,0 +1,208 @@
+"""Structural checks of the answer interface, one registered function per check.
+
+Each row check receives a :class:`ParsedRow` and returns ``None`` (pass) or a short message (fail).
+``resti verify`` runs every registered check over every accepted row and reports, per check, the
+ids of the failing rows. New checks plug in with ``@row_check("name")``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .. import LETTERS
+from .. import values as V
+from ..errors import InputError
+
+# The value kind each task's answers must have.
+TASK_KIND = {
+    "3D Video Grounding": "box",
+    "Pose Estimation": "pose",
+    "Ego-Centric Orientation": "scalar",
+    "Dimensional Measurement": "scalar",
+    "Displacement & Path Length": "scalar",
+    "Speed & Acceleration": "scalar",
+    "Trajectory Description": "trajectory",
+    "Spatial Relation": "label",
+}
+
+
+@dataclass
+class ParsedRow:
+    """A row with its candidates parsed once (``values`` letter -> Value; ``errors`` letter -> text)."""
+
+    rid: object
+    task: str
+    source: str
+    candidates: dict
+    answer: str
+    detail: str
+    values: dict
+    errors: dict
+    detail_value: object | None
+    detail_error: str | None
+    time_start: object
+    time_end: object
+
+    @property
+    def complete(self) -> bool:
+        return not self.errors and sorted(self.values) == list(LETTERS)
+
+
+def parse_row(r: dict, rid: object) -> ParsedRow:
+    cand = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
+    vals, errs = {}, {}
+    for k, s in cand.items():
+        try:
+            vals[k] = V.parse(s, row=rid, field=f"Candidates.{k}")
+        except InputError as e:
+            errs[k] = e.message
+    dv, de = None, None
+    try:
+        dv = V.parse(r.get("Answer Detail"), row=rid, field="Answer Detail")
+    except InputError as e:
+        de = e.message
+    return ParsedRow(rid=rid, task=r.get("Task"), source=r.get("Source"), candidates=cand,
+                     answer=r.get("Answer"), detail=r.get("Answer Detail"), values=vals, errors=errs,
+                     detail_value=dv, detail_error=de, time_start=r.get("time_start"),
+                     time_end=r.get("time_end"))
+
+
+RowCheck = Callable[[ParsedRow], "str | None"]
+ROW_CHECKS: dict[str, RowCheck] = {}
+
+
+def row_check(name: str):
+    def deco(fn: RowCheck) -> RowCheck:
+        ROW_CHECKS[name] = fn
+        return fn
+    return deco
+
+
+def rotation_tolerance(decimals: int) -> float:
+    """Tolerance on max|RRᵀ−I| and |det R − 1| for entries printed with ``decimals`` decimals.
+
+    Rounding an exact rotation moves each entry by at most ε = 0.5·10⁻ᵈ, which bounds the error by
+    2√3·ε ≈ 1.7·10⁻ᵈ. Distractors built from separately rounded components reach about 2.7·10⁻ᵈ
+    (ReSTI v5 poses: 0.0265 at two decimals), so the check allows 3·10⁻ᵈ: still far below any
+    real defect (a reflected or sheared matrix is off by order 1).
+    """
+    return 3.0 * 10.0 ** -decimals
+
+
+@row_check("five_candidates")
+def _five(p: ParsedRow):
+    keys = sorted(p.candidates)
+    return None if keys == list(LETTERS) else f"candidate letters {keys}"
+
+
+@row_check("parseable")
+def _parseable(p: ParsedRow):
+    if p.errors:
+        return "; ".join(f"{k}: {m}" for k, m in sorted(p.errors.items()))
+    if p.detail_error:
+        return f"Answer Detail: {p.detail_error}"
+    return None
+
+
+@row_check("key_detail_agreement")
+def _key_detail(p: ParsedRow):
+    keyed = p.candidates.get(p.answer)
+    if keyed is None:
+        return f"answer letter {p.answer!r} is not a candidate"
+    if keyed == p.detail:
+        return None
+    kv = p.values.get(p.answer)
+    if kv is not None and p.detail_value is not None and V.agree(kv, p.detail_value):
+        return f"keyed {keyed!r} equals detail {p.detail!r} only after rounding"
+    return f"keyed {keyed!r} != detail {p.detail!r}"
+
+
+@row_check("distinct_strings")
+def _distinct(p: ParsedRow):
+    strs = [" ".join(str(s).split()) for s in p.candidates.values()]
+    dup = sorted({s for s in strs if strs.count(s) > 1})
+    return f"repeated candidate(s) {dup}" if dup else None
+
+
+@row_check("numeric_duplicates")
+def _numeric_dup(p: ParsedRow):
+    seen: dict = {}
+    for k in sorted(p.values):
+        v = p.values[k]
+        seen.setdefault(v.key(), []).append(k)
+    groups = [ks for ks in seen.values() if len(ks) > 1
+              and len({" ".join(p.candidates[k].split()) for k in ks}) > 1]
+    return f"same value, different text: {groups}" if groups else None
+
+
+@row_check("same_kind")
+def _same_kind(p: ParsedRow):
+    want = TASK_KIND.get(p.task)
+    kinds = {k: v.kind for k, v in p.values.items()}
+    bad = {k: kd for k, kd in kinds.items() if want and kd != want}
+    if bad:
+        return f"expected {want} values, got {bad}"
+    dims = {v.dimension for v in p.values.values() if isinstance(v, V.Scalar)}
+    if len(dims) > 1:
+        return f"mixed dimensions {sorted(dims)}"
+    return None
+
+
+@row_check("finite_values")
+def _finite(p: ParsedRow):
+    bad = sorted(k for k, v in p.values.items() if not v.finite())
+    if p.detail_value is not None and not p.detail_value.finite():
+        bad.append("Answer Detail")
+    return f"non-finite value in {bad}" if bad else None
+
+
+@row_check("time_order")
+def _times(p: ParsedRow):
+    try:
+        ts, te = float(p.time_start), float(p.time_end)
+    except (TypeError, ValueError):
+        return f"times not numeric ({p.time_start!r}, {p.time_end!r})"
+    if not (math.isfinite(ts) and math.isfinite(te)):
+        return f"non-finite time ({ts}, {te})"
+    if ts < 0 or te < ts:
+        return f"time order violated (0 <= {ts} <= {te})"
+    return None
+
+
+@row_check("rotation_validity")
+def _rotations(p: ParsedRow):
+    msgs = []
+    for k, v in sorted(p.values.items()):
+        R = getattr(v, "R", None)
+        if R is None or not v.finite():
+            continue
+        R = np.array(R, dtype=float)
+        tol = rotation_tolerance(v.decimals)
+        orth = float(np.abs(R @ R.T - np.eye(3)).max())
+        det = float(np.linalg.det(R))
+        if orth > tol or abs(det - 1.0) > tol:
+            msgs.append(f"{k}: |RRᵀ−I|={orth:.3g}, det={det:.4f} (tol {tol:.3g})")
+    return "; ".join(msgs) or None
+
+
+@row_check("box_consistency")
+def _boxes(p: ParsedRow):
+    msgs = []
+    for k, v in sorted(p.values.items()):
+        if not isinstance(v, V.Box) or not v.finite():
+            continue
+        if min(v.lwh) <= 0:
+            msgs.append(f"{k}: non-positive edge length {v.lwh}")
+        if v.R is not None and v.heading is not None:
+            R = np.array(v.R)
+            h = V.box_heading(R)
+            eps = 0.5 * 10.0 ** -v.decimals
+            scale = max(math.hypot(R[0, 0], R[1, 0]), 1e-6)
+            tol = math.degrees(2 * eps / scale) + 0.005 + 1e-9
+            if abs(float(V.wrap_degrees(h - v.heading))) > tol:
+                msgs.append(f"{k}: C_heading {v.heading} != atan2(R10,R00) {h:.3f}")
+    return "; ".join(msgs) or None
