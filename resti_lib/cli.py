@@ -1,0 +1,107 @@
+"""The ``resti`` command line: verify, attack, measure, synth, run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .errors import InputError
+
+
+def _cmd_verify(a) -> int:
+    from .verify import format_text, to_json, verify_path
+
+    v = verify_path(a.path, legacy=a.legacy)
+    print(to_json(v) if a.json else format_text(v))
+    return 0 if v["passed"] else 1
+
+
+def _cmd_attack(a) -> int:
+    from .answer_interface import select_attacks
+    from .io.benchmark import load_release
+    from .options.attacks import attack_table
+
+    rel = load_release(a.path, strict=False)
+    table = attack_table(rel.accepted.to_dict("records"), alpha=a.alpha, attacks=select_attacks(a.attacks))
+    if a.format == "json":
+        print(json.dumps(table.to_dict("records"), indent=1, default=float))
+    elif a.format == "csv":
+        sys.stdout.write(table.to_csv(index=False, lineterminator="\n"))
+    else:
+        shown = table.copy()
+        for c in ("coverage", "accuracy", "chance"):
+            shown[c] = shown[c].map(lambda x: f"{x:.3f}")
+        shown["p_value"] = shown["p_value"].map(lambda x: f"{x:.3g}")
+        print(shown.to_markdown(index=False))
+    return 0
+
+
+def _cmd_measure(a) -> int:
+    from .measure import measure_main
+
+    return measure_main(a.rest)
+
+
+def _cmd_synth(a) -> int:
+    from .synth import generate
+
+    summary = generate(Path(a.out), seed=a.seed, scale=a.scale)
+    print(json.dumps(summary, indent=1, default=str))
+    return 0
+
+
+def _cmd_run(a) -> int:
+    from .pipeline import run
+
+    return run(a.params, only=a.only, jobs=a.jobs)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="resti", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    v = sub.add_parser("verify", help="validate a ReSTI-schema release (folder or file)")
+    v.add_argument("path")
+    v.add_argument("--json", action="store_true", help="print the validation object as JSON")
+    v.add_argument("--legacy", help="legacy qa.parquet: also check that every legacy row is accounted for")
+    v.set_defaults(fn=_cmd_verify)
+
+    at = sub.add_parser("attack", help="option-only attacks on a release")
+    at.add_argument("path")
+    at.add_argument("--format", choices=["md", "csv", "json"], default="md")
+    at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate")
+    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all)")
+    at.set_defaults(fn=_cmd_attack)
+
+    m = sub.add_parser("measure", help="evaluate measurement contracts against the sources",
+                       add_help=False)
+    m.add_argument("rest", nargs=argparse.REMAINDER)
+    m.set_defaults(fn=_cmd_measure)
+
+    s = sub.add_parser("synth", help="generate the mini-world (sources + legacy benchmark + manifest)")
+    s.add_argument("out")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--scale", type=int, default=None)
+    s.set_defaults(fn=_cmd_synth)
+
+    r = sub.add_parser("run", help="the main job: notebooks -> release, tables, figures, report")
+    r.add_argument("--params", default="params/default.yaml")
+    r.add_argument("--only", nargs="*", default=None, help="run only these notebooks/stages")
+    r.add_argument("--jobs", type=int, default=None, help="parallel notebooks (default: cores)")
+    r.set_defaults(fn=_cmd_run)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except InputError as e:
+        print(f"resti {args.cmd}: input error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""The main job (``make report`` / ``resti run``): notebooks in order, then the report index.
+
+``params/default.yaml`` lists the stages; each stage is a notebook with its own params file.
+Keys of ``default.yaml`` that a notebook's ``parameters`` cell declares are passed to it too, so
+source roots and the legacy path are stated once.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from . import paths
+from .runner import NotebookError, load_params, notebook_parameters, run_notebook
+
+
+def stage_params(stage: dict, common: dict) -> tuple[Path, dict]:
+    nb = paths.NOTEBOOKS / f"{stage['notebook']}.ipynb"
+    if not nb.exists():
+        raise FileNotFoundError(f"stage notebook not found: {nb}")
+    own = load_params(stage["params"]) if stage.get("params") else {}
+    declared = notebook_parameters(nb)
+    merged = {k: v for k, v in common.items() if k in declared}
+    merged.update(own)
+    return nb, merged
+
+
+def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int | None = None) -> int:
+    """Run the stages of ``params_file``; returns a process exit code."""
+    cfg = load_params(params_file)
+    stages = cfg.get("stages") or []
+    common = {k: v for k, v in cfg.items() if k != "stages"}
+    if only:
+        stages = [s for s in stages if s["notebook"] in only or s["notebook"].split("_", 1)[-1] in only]
+        if not stages:
+            print(f"resti run: no stage matches {only}", file=sys.stderr)
+            return 2
+    jobs = jobs or cfg.get("jobs") or os.cpu_count() or 1
+    t0 = time.perf_counter()
+    # stages are grouped into waves: stages of one wave are independent and run in parallel
+    waves: dict[int, list[dict]] = {}
+    for s in stages:
+        waves.setdefault(int(s.get("wave", 0)), []).append(s)
+    bar = tqdm(total=len(stages), desc="notebooks", unit="nb", file=sys.stderr)
+    runs = []
+    try:
+        for w in sorted(waves):
+            prepared = [stage_params(s, common) for s in waves[w]]
+            with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(prepared)))) as ex:
+                futures = [ex.submit(run_notebook, nb, p) for nb, p in prepared]
+                for f in futures:
+                    r = f.result()
+                    runs.append(r)
+                    bar.update(1)
+                    bar.set_postfix_str(f"{r.name} {r.seconds:.1f}s")
+    except NotebookError as e:
+        bar.close()
+        print(f"resti run: {e}", file=sys.stderr)
+        return 1
+    bar.close()
+    from .report import write_index
+
+    index = write_index()
+    print(f"resti run: {len(runs)} notebooks in {time.perf_counter() - t0:.1f}s; report: {index}")
+    return 0
