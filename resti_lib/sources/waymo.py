@@ -1,0 +1,429 @@
+"""Waymo Open Dataset v2 (Perception) parquet readers.
+
+Layout: ``<root>/<component>/<segment_context_name>.parquet`` (``../shared/formats/waymo_v2.md``).
+Only the needed columns are read (pyarrow column projection); camera image bytes are never read.
+
+Frames and conventions
+----------------------
+- Vehicle and Waymo camera frames: +X forward, +Y left, +Z up. World: the segment's ENU-like frame.
+- ``world_from_vehicle(t)``: ``[VehiclePoseComponent].world_from_vehicle.transform`` (row-major).
+- ``extrinsic(camera) = T_vehicle_from_waymo_cam``.
+- Camera tracks are returned in OpenCV camera axes:
+  ``T_world_from_cam = world_from_vehicle(t) @ extrinsic(camera) @ T_WAYMO_CAM_FROM_CV_CAM``.
+- LiDAR boxes are in the vehicle frame of their own frame timestamp; ``heading`` is the yaw about
+  vehicle +Z; ``size = (length along heading, width, height)``. World box pose:
+  ``T_world_from_box = world_from_vehicle(frame) @ [yaw(heading) | center]``.
+- Segment time ``t = (micros - first_micros) / 1e6`` with ``first_micros`` the first
+  ``vehicle_pose`` frame of the segment.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from resti_lib.errors import InputError
+from resti_lib.geometry.frames import T_WAYMO_CAM_FROM_CV_CAM, check_rotation, make_T, yaw_matrix
+from resti_lib.geometry.trajectory import PoseTrack
+
+__all__ = [
+    "CAMERA_NAMES",
+    "BOX_TYPES",
+    "KEY_SEGMENT",
+    "KEY_MICROS",
+    "KEY_CAMERA",
+    "KEY_OBJECT",
+    "VEHICLE_POSE",
+    "CAL_EXTRINSIC",
+    "IMG_POSE",
+    "IMG_POSE_TIMESTAMP",
+    "camera_number",
+    "read_columns",
+    "read_vehicle_pose",
+    "read_camera_calibration",
+    "read_camera_image_poses",
+    "read_lidar_boxes",
+    "WaymoSegment",
+]
+
+CAMERA_NAMES = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
+BOX_TYPES = {0: "TYPE_UNKNOWN", 1: "TYPE_VEHICLE", 2: "TYPE_PEDESTRIAN", 3: "TYPE_SIGN", 4: "TYPE_CYCLIST"}
+
+KEY_SEGMENT = "key.segment_context_name"
+KEY_MICROS = "key.frame_timestamp_micros"
+KEY_CAMERA = "key.camera_name"
+KEY_OBJECT = "key.laser_object_id"
+VEHICLE_POSE = "[VehiclePoseComponent].world_from_vehicle.transform"
+_CAL = "[CameraCalibrationComponent]"
+CAL_EXTRINSIC = f"{_CAL}.extrinsic.transform"
+CAL_INTRINSIC = {k: f"{_CAL}.intrinsic.{k}" for k in ("f_u", "f_v", "c_u", "c_v", "k1", "k2", "p1", "p2", "k3")}
+CAL_WIDTH = f"{_CAL}.width"
+CAL_HEIGHT = f"{_CAL}.height"
+IMG_POSE = "[CameraImageComponent].pose.transform"
+IMG_POSE_TIMESTAMP = "[CameraImageComponent].pose_timestamp"
+_BOX = "[LiDARBoxComponent]"
+BOX_COLUMNS = {
+    "cx": f"{_BOX}.box.center.x", "cy": f"{_BOX}.box.center.y", "cz": f"{_BOX}.box.center.z",
+    "length": f"{_BOX}.box.size.x", "width": f"{_BOX}.box.size.y", "height": f"{_BOX}.box.size.z",
+    "heading": f"{_BOX}.box.heading", "type": f"{_BOX}.type",
+}
+#: optional in the v2 schema (``Optional[Vec3d]``): absent columns read as NaN
+BOX_OPTIONAL = {
+    "speed_x": f"{_BOX}.speed.x", "speed_y": f"{_BOX}.speed.y", "speed_z": f"{_BOX}.speed.z",
+    "accel_x": f"{_BOX}.acceleration.x", "accel_y": f"{_BOX}.acceleration.y",
+    "accel_z": f"{_BOX}.acceleration.z",
+}
+ROTATION_TOL = 1e-4  # transforms may be stored as float32
+
+
+def camera_number(camera: int | str) -> int:
+    """CameraName enum value (1..5) from an int, a digit string or a name (``FRONT``, ``front_left``)."""
+    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool):
+        n = int(camera)
+    else:
+        s = str(camera).strip().upper()
+        if s.isdigit():
+            n = int(s)
+        else:
+            names = {v: k for k, v in CAMERA_NAMES.items()}
+            if s not in names:
+                raise InputError(f"unknown Waymo camera {camera!r} (1-5 or {', '.join(CAMERA_NAMES.values())})",
+                                 field="camera")
+            n = names[s]
+    if n not in CAMERA_NAMES:
+        raise InputError(f"unknown Waymo camera number {n} (1-5)", field="camera")
+    return n
+
+
+def read_columns(path: str | Path, required: list[str], optional: list[str] = ()) -> pa.Table:
+    """Read only ``required`` (+ present ``optional``) columns; InputError naming a missing one."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("parquet file not found", file=path)
+    try:
+        names = set(pq.read_schema(path).names)
+    except Exception as e:  # pyarrow raises ArrowInvalid/OSError on non-parquet input
+        raise InputError(f"not a readable parquet file: {e}", file=path) from None
+    for c in required:
+        if c not in names:
+            raise InputError("missing column", file=path, field=c)
+    cols = list(required) + [c for c in optional if c in names]
+    return pq.read_table(path, columns=cols)
+
+
+def _transforms(table: pa.Table, column: str, path: Path) -> np.ndarray:
+    """``[N, 4, 4]`` float64 from a 16-float list column (row-major); null rows become NaN."""
+    arr = table.column(column).combine_chunks()
+    n = len(arr)
+    if not (pa.types.is_list(arr.type) or pa.types.is_fixed_size_list(arr.type)
+            or pa.types.is_large_list(arr.type)):
+        raise InputError(f"expected a list of 16 numbers, got {arr.type}", file=path, field=column)
+    out = np.full((n, 16), np.nan)
+    if pa.types.is_fixed_size_list(arr.type):
+        if arr.type.list_size != 16:
+            raise InputError(f"expected 16 numbers per row, got {arr.type.list_size}", file=path, field=column)
+        vals = np.asarray(arr.values.to_numpy(zero_copy_only=False), dtype=np.float64).reshape(n, 16)
+        ok = ~np.asarray(arr.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+        out[ok] = vals[ok]
+    else:
+        lens = np.asarray(arr.value_lengths().fill_null(16).to_numpy(zero_copy_only=False))
+        if (lens != 16).any():
+            i = int(np.argmax(lens != 16))
+            raise InputError(f"expected 16 numbers, got {lens[i]}", file=path, row=i, field=column)
+        ok = ~np.asarray(arr.is_null().to_numpy(zero_copy_only=False), dtype=bool)
+        flat = np.asarray(arr.flatten().to_numpy(zero_copy_only=False), dtype=np.float64)
+        out[ok] = flat.reshape(-1, 16)
+    return out.reshape(n, 4, 4)
+
+
+def _segment_rows(table: pa.Table, segment: str | None, path: Path) -> np.ndarray:
+    names = np.asarray(table.column(KEY_SEGMENT).to_numpy(zero_copy_only=False)).astype(str)
+    if segment is None:
+        return np.ones(len(names), bool)
+    keep = names == segment
+    if not keep.any():
+        raise InputError(f"no row of segment {segment!r}", file=path, field=KEY_SEGMENT)
+    return keep
+
+
+def _int_col(table: pa.Table, column: str) -> np.ndarray:
+    return np.asarray(table.column(column).to_numpy(zero_copy_only=False))
+
+
+def read_vehicle_pose(path: str | Path, segment: str | None = None, *, rotation_tol: float = ROTATION_TOL
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """``vehicle_pose`` component -> ``(micros [N] int64, world_from_vehicle [N, 4, 4])`` sorted by time.
+
+    Raises
+    ------
+    InputError
+        Missing column, duplicate timestamps, or a finite transform that is not rigid.
+    """
+    path = Path(path)
+    tab = read_columns(path, [KEY_SEGMENT, KEY_MICROS, VEHICLE_POSE])
+    keep = _segment_rows(tab, segment, path)
+    micros = _int_col(tab, KEY_MICROS).astype(np.int64)[keep]
+    T = _transforms(tab, VEHICLE_POSE, path)[keep]
+    order = np.argsort(micros, kind="stable")
+    micros, T = micros[order], T[order]
+    dup = np.flatnonzero(np.diff(micros) == 0)
+    if dup.size:
+        raise InputError(f"duplicate frame timestamp {micros[dup[0]]}", file=path, row=int(order[dup[0] + 1]),
+                         field=KEY_MICROS)
+    fin = np.isfinite(T).all(axis=(1, 2))
+    if fin.any():
+        idx = np.flatnonzero(fin)
+        try:
+            check_rotation(T[fin, :3, :3], tol=rotation_tol, field=VEHICLE_POSE)
+        except InputError as e:
+            raise InputError(e.message, file=path, row=int(order[idx[e.row]]), field=VEHICLE_POSE) from None
+    return micros, T
+
+
+def read_camera_calibration(path: str | Path, segment: str | None = None) -> dict[int, dict]:
+    """``camera_calibration`` -> ``{camera_number: {"extrinsic", "intrinsics", "width", "height"}}``.
+
+    ``extrinsic`` is ``T_vehicle_from_waymo_cam`` (4x4, Waymo camera axes); ``intrinsics`` holds
+    ``f_u, f_v, c_u, c_v, k1, k2, p1, p2, k3`` (pixels / unitless, OpenCV distortion model).
+    """
+    path = Path(path)
+    req = [KEY_SEGMENT, KEY_CAMERA, CAL_EXTRINSIC, *CAL_INTRINSIC.values(), CAL_WIDTH, CAL_HEIGHT]
+    tab = read_columns(path, req)
+    keep = _segment_rows(tab, segment, path)
+    cams = _int_col(tab, KEY_CAMERA)
+    E = _transforms(tab, CAL_EXTRINSIC, path)
+    out: dict[int, dict] = {}
+    cols = {k: np.asarray(tab.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
+            for k, c in CAL_INTRINSIC.items()}
+    W = _int_col(tab, CAL_WIDTH)
+    H = _int_col(tab, CAL_HEIGHT)
+    for i in np.flatnonzero(keep):
+        cam = int(cams[i])
+        if cam in out:
+            raise InputError(f"camera {cam} calibrated twice", file=path, row=int(i), field=KEY_CAMERA)
+        if not np.isfinite(E[i]).all():
+            raise InputError("non-finite extrinsic", file=path, row=int(i), field=CAL_EXTRINSIC)
+        check_rotation(E[i, :3, :3], tol=ROTATION_TOL, file=path, row=int(i), field=CAL_EXTRINSIC)
+        out[cam] = {"extrinsic": E[i], "intrinsics": {k: float(v[i]) for k, v in cols.items()},
+                    "width": int(W[i]), "height": int(H[i]), "row": int(i)}
+    return out
+
+
+def read_camera_image_poses(path: str | Path, camera: int | str, segment: str | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-image vehicle poses of one camera from ``camera_image`` (the JPEG column is not read).
+
+    Returns
+    -------
+    frame_micros : int64 ``[N]``; pose_timestamp : float64 ``[N]`` (seconds, epoch);
+    world_from_vehicle : ``[N, 4, 4]`` at ``pose_timestamp``. Sorted by ``pose_timestamp``.
+    """
+    path = Path(path)
+    cam = camera_number(camera)
+    tab = read_columns(path, [KEY_SEGMENT, KEY_MICROS, KEY_CAMERA, IMG_POSE, IMG_POSE_TIMESTAMP])
+    keep = _segment_rows(tab, segment, path) & (_int_col(tab, KEY_CAMERA) == cam)
+    if not keep.any():
+        raise InputError(f"no image rows for camera {cam}", file=path, field=KEY_CAMERA)
+    micros = _int_col(tab, KEY_MICROS).astype(np.int64)[keep]
+    ts = np.asarray(tab.column(IMG_POSE_TIMESTAMP).to_numpy(zero_copy_only=False), dtype=np.float64)[keep]
+    T = _transforms(tab, IMG_POSE, path)[keep]
+    order = np.argsort(ts, kind="stable")
+    return micros[order], ts[order], T[order]
+
+
+def read_lidar_boxes(path: str | Path, segment: str | None = None):
+    """``lidar_box`` -> pandas DataFrame, one row per (frame, object), sorted by (id, micros).
+
+    Columns: ``micros``, ``id`` (laser_object_id), ``type`` (int), ``type_name``, ``cx, cy, cz``,
+    ``length, width, height`` (metres), ``heading`` (rad, vehicle frame), ``speed_x/y/z`` (m/s),
+    ``accel_x/y/z`` (m/s^2) -- vehicle-frame quantities as stored; optional ones NaN when absent.
+    """
+    import pandas as pd
+
+    path = Path(path)
+    tab = read_columns(path, [KEY_SEGMENT, KEY_MICROS, KEY_OBJECT, *BOX_COLUMNS.values()],
+                       list(BOX_OPTIONAL.values()))
+    keep = _segment_rows(tab, segment, path)
+    data = {"micros": _int_col(tab, KEY_MICROS).astype(np.int64),
+            "id": np.asarray(tab.column(KEY_OBJECT).to_numpy(zero_copy_only=False)).astype(str)}
+    for k, c in {**BOX_COLUMNS, **BOX_OPTIONAL}.items():
+        if c in tab.column_names:
+            data[k] = np.asarray(tab.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
+        else:
+            data[k] = np.full(len(tab), np.nan)
+    df = pd.DataFrame(data)[keep]
+    df["type"] = df["type"].astype(int)
+    df["type_name"] = df["type"].map(BOX_TYPES).fillna("TYPE_UNKNOWN")
+    df["source_row"] = np.flatnonzero(keep)
+    dup = df.duplicated(["id", "micros"])
+    if dup.any():
+        r = df[dup].iloc[0]
+        raise InputError(f"object {r['id']} twice at {r['micros']}", file=path, row=int(r["source_row"]),
+                         field=KEY_OBJECT)
+    return df.sort_values(["id", "micros"], kind="stable").reset_index(drop=True)
+
+
+class WaymoSegment:
+    """One Waymo v2 segment under ``root`` (``<root>/<component>/<segment>.parquet``).
+
+    Parameters
+    ----------
+    root : path
+        The folder holding the component folders.
+    segment : str
+        ``segment_context_name``.
+    """
+
+    def __init__(self, root: str | Path, segment: str):
+        self.root = Path(root)
+        self.segment = segment
+
+    def path(self, component: str) -> Path:
+        return self.root / component / f"{self.segment}.parquet"
+
+    # -- vehicle poses and time
+    @cached_property
+    def _vehicle(self) -> tuple[np.ndarray, np.ndarray]:
+        return read_vehicle_pose(self.path("vehicle_pose"), self.segment)
+
+    @property
+    def first_micros(self) -> int:
+        """Timestamp (µs) of the segment's first vehicle_pose frame: ``t = 0``."""
+        return int(self._vehicle[0][0])
+
+    def time_of_micros(self, micros: np.ndarray | int) -> np.ndarray | float:
+        """Segment time in seconds: ``(micros - first_micros) / 1e6``."""
+        t = (np.asarray(micros, dtype=np.int64) - self.first_micros) / 1e6
+        return float(t) if np.ndim(t) == 0 else t
+
+    @property
+    def duration(self) -> float:
+        m = self._vehicle[0]
+        return (int(m[-1]) - int(m[0])) / 1e6
+
+    def ego_track(self) -> PoseTrack:
+        """``world_from_vehicle`` track (vehicle axes: +X forward, +Z up; origin rear-axle centre)."""
+        micros, T = self._vehicle
+        return PoseTrack(self.time_of_micros(micros), T, name=f"{self.segment} vehicle",
+                         source=str(self.path("vehicle_pose")),
+                         meta={"micros": micros, "axes": "vehicle (+X forward, +Y left, +Z up)"})
+
+    # -- cameras
+    @cached_property
+    def calibration(self) -> dict[int, dict]:
+        """``{camera_number: {...}}`` from ``camera_calibration`` (see :func:`read_camera_calibration`)."""
+        return read_camera_calibration(self.path("camera_calibration"), self.segment)
+
+    def camera_calibration(self, camera: int | str) -> dict:
+        cam = camera_number(camera)
+        if cam not in self.calibration:
+            raise InputError(f"camera {cam} ({CAMERA_NAMES[cam]}) not calibrated",
+                             file=self.path("camera_calibration"), field=KEY_CAMERA)
+        return self.calibration[cam]
+
+    def camera_track(self, camera: int | str, *, poses: str = "vehicle_pose") -> PoseTrack:
+        """Camera track ``T_world_from_cam`` in OpenCV camera axes.
+
+        ``T = world_from_vehicle(t) @ extrinsic(camera) @ T_WAYMO_CAM_FROM_CV_CAM``.
+
+        Parameters
+        ----------
+        poses : {"vehicle_pose", "camera_image"}
+            ``vehicle_pose``: the frame poses (top-lidar mid-spin) at frame times.
+            ``camera_image``: each image's own pose at its ``pose_timestamp``.
+        """
+        cam = camera_number(camera)
+        E = self.camera_calibration(cam)["extrinsic"]
+        chain = E @ T_WAYMO_CAM_FROM_CV_CAM
+        name = f"{self.segment} camera {cam} ({CAMERA_NAMES[cam]})"
+        if poses == "vehicle_pose":
+            micros, W = self._vehicle
+            return PoseTrack(self.time_of_micros(micros), W @ chain, name=name,
+                             source=f"{self.path('vehicle_pose')} + {self.path('camera_calibration')}",
+                             meta={"micros": micros, "camera": cam, "chain": "world_from_vehicle @ "
+                                   "extrinsic @ T_waymo_cam_from_cv_cam", "axes": "OpenCV"})
+        if poses == "camera_image":
+            micros, ts, W = read_camera_image_poses(self.path("camera_image"), cam, self.segment)
+            t = ts - self.first_micros / 1e6
+            return PoseTrack(t, W @ chain, name=name + " image poses",
+                             source=f"{self.path('camera_image')} + {self.path('camera_calibration')}",
+                             meta={"frame_micros": micros, "pose_timestamp": ts, "camera": cam,
+                                   "axes": "OpenCV"})
+        raise ValueError(f"poses must be 'vehicle_pose' or 'camera_image', got {poses!r}")
+
+    # -- boxes
+    @cached_property
+    def lidar_boxes(self):
+        """All LiDAR boxes (DataFrame, see :func:`read_lidar_boxes`) with segment time ``t``."""
+        df = read_lidar_boxes(self.path("lidar_box"), self.segment)
+        df["t"] = self.time_of_micros(df["micros"].to_numpy())
+        return df
+
+    def _world_from_vehicle_at_micros(self, micros: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        vm, W = self._vehicle
+        k = np.searchsorted(vm, micros)
+        kc = np.clip(k, 0, len(vm) - 1)
+        miss = vm[kc] != micros
+        if miss.any():
+            i = int(np.argmax(miss))
+            raise InputError(f"box frame {int(micros[i])} has no vehicle_pose frame",
+                             file=self.path("lidar_box"), row=int(rows[i]), field=KEY_MICROS)
+        return W[kc]
+
+    def _box_world(self, df) -> np.ndarray:
+        W = self._world_from_vehicle_at_micros(df["micros"].to_numpy(), df["source_row"].to_numpy())
+        T_vb = make_T(yaw_matrix(df["heading"].to_numpy()), df[["cx", "cy", "cz"]].to_numpy())
+        return W @ T_vb
+
+    def object_track(self, laser_object_id: str) -> PoseTrack:
+        """World box poses ``T_world_from_box`` of one tracked object (box +X along its heading).
+
+        ``meta`` carries per-sample ``size`` ``[N, 3]`` (length, width, height), ``type``, and the
+        stored vehicle-frame ``speed`` and ``accel`` vectors.
+        """
+        df = self.lidar_boxes
+        sel = df[df["id"] == str(laser_object_id)]
+        if sel.empty:
+            raise InputError(f"no box with laser_object_id {laser_object_id!r}", file=self.path("lidar_box"),
+                             field=KEY_OBJECT)
+        T = self._box_world(sel)
+        return PoseTrack(sel["t"].to_numpy(), T, name=f"{self.segment} object {laser_object_id}",
+                         source=f"{self.path('lidar_box')} + {self.path('vehicle_pose')}",
+                         meta={"micros": sel["micros"].to_numpy(),
+                               "size": sel[["length", "width", "height"]].to_numpy(),
+                               "type": sel["type_name"].iloc[0],
+                               "speed": sel[["speed_x", "speed_y", "speed_z"]].to_numpy(),
+                               "accel": sel[["accel_x", "accel_y", "accel_z"]].to_numpy()})
+
+    def boxes_at(self, t: float, *, tol: float = 1e-3) -> list[dict]:
+        """Boxes of the frame at segment time ``t`` (the nearest frame within ``tol`` seconds).
+
+        Each dict: ``id``, ``type``, ``t``, ``micros``, ``center_vehicle``, ``heading_vehicle``
+        (rad), ``size`` (length, width, height), ``T_world_from_box``, ``center_world``,
+        ``heading_world`` (rad, yaw of box +X in the world), ``speed``/``accel`` (vehicle frame).
+        """
+        df = self.lidar_boxes
+        if df.empty:
+            return []
+        frames = np.unique(df["t"].to_numpy())
+        k = int(np.argmin(np.abs(frames - t)))
+        if abs(frames[k] - t) > tol:
+            raise InputError(f"no box frame within {tol} s of t={t} (nearest {frames[k]:.6f} s)",
+                             file=self.path("lidar_box"), field=KEY_MICROS)
+        sel = df[df["t"] == frames[k]]
+        T = self._box_world(sel)
+        out = []
+        for j, (_, r) in enumerate(sel.iterrows()):
+            out.append({"id": r["id"], "type": r["type_name"], "t": float(r["t"]), "micros": int(r["micros"]),
+                        "center_vehicle": np.array([r["cx"], r["cy"], r["cz"]]),
+                        "heading_vehicle": float(r["heading"]),
+                        "size": np.array([r["length"], r["width"], r["height"]]),
+                        "T_world_from_box": T[j], "center_world": T[j, :3, 3].copy(),
+                        "heading_world": float(np.arctan2(T[j, 1, 0], T[j, 0, 0])),
+                        "speed": np.array([r["speed_x"], r["speed_y"], r["speed_z"]]),
+                        "accel": np.array([r["accel_x"], r["accel_y"], r["accel_z"]])})
+        return out
