@@ -1,0 +1,113 @@
+"""Source roots from params, opened lazily and cached per sequence.
+
+The keys are those of ``../shared/formats/contract.md``: ``scannet_root`` (ScanNet's ``scans/``),
+``waymo_root`` (``<component>/<segment>.parquet``), ``omni6d_root`` (``ROPE/`` + ``Meta/``),
+``scannet_fps``, ``omni6d_fps``, and optionally ``video_map`` (CSV video, source, sequence, camera).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .. import paths
+from ..errors import InputError
+from .mapping import VideoSource, load_mapping_table, map_video
+
+ROOT_KEYS = {"ScanNet": "scannet_root", "Waymo": "waymo_root", "Omni6DPose": "omni6d_root"}
+
+
+@dataclass
+class SourceContext:
+    scannet_root: Path | None = None
+    waymo_root: Path | None = None
+    omni6d_root: Path | None = None
+    scannet_fps: float = 30.0
+    omni6d_fps: float = 30.0
+    video_map: dict | None = None
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_params(cls, params: dict) -> "SourceContext":
+        def p(key):
+            v = params.get(key)
+            return paths.resolve(v) if v else None
+
+        vm = params.get("video_map")
+        table = load_mapping_table(paths.resolve(vm)) if vm else None
+        return cls(scannet_root=p("scannet_root"), waymo_root=p("waymo_root"), omni6d_root=p("omni6d_root"),
+                   scannet_fps=float(params.get("scannet_fps") or 30.0),
+                   omni6d_fps=float(params.get("omni6d_fps") or 30.0), video_map=table)
+
+    def locate(self, video: str) -> VideoSource:
+        return map_video(video, self.video_map)
+
+    def _root(self, source: str) -> Path:
+        root = getattr(self, ROOT_KEYS[source])
+        if root is None:
+            raise InputError(f"no {ROOT_KEYS[source]} given in the params", field=ROOT_KEYS[source])
+        if not Path(root).exists():
+            raise InputError(f"{ROOT_KEYS[source]} does not exist", file=root, field=ROOT_KEYS[source])
+        return Path(root)
+
+    def scannet(self, scene: str):
+        from .scannet import ScanNetScene
+
+        k = ("ScanNet", scene)
+        if k not in self._cache:
+            self._cache[k] = ScanNetScene(self._root("ScanNet"), scene, fps=self.scannet_fps)
+        return self._cache[k]
+
+    def waymo(self, segment: str):
+        from .waymo import WaymoSegment
+
+        k = ("Waymo", segment)
+        if k not in self._cache:
+            self._cache[k] = WaymoSegment(self._root("Waymo"), segment)
+        return self._cache[k]
+
+    def rope(self, scene: str):
+        from .omni6d import RopeScene
+
+        k = ("Omni6DPose", scene)
+        if k not in self._cache:
+            self._cache[k] = RopeScene(self._root("Omni6DPose"), scene, fps=self.omni6d_fps)
+        return self._cache[k]
+
+    def sequence(self, video: str):
+        """The opened source sequence of a video (ScanNetScene, WaymoSegment or RopeScene)."""
+        vs = self.locate(video)
+        return {"ScanNet": self.scannet, "Waymo": self.waymo, "Omni6DPose": self.rope}[vs.source](vs.sequence)
+
+
+def check_real_params(params: dict) -> list[str]:
+    """Everything missing or wrong in a real-data params file, as one list of messages."""
+    problems = []
+    leg = params.get("legacy_benchmark")
+    if not leg:
+        problems.append("legacy_benchmark: not given (the STI-Bench qa.parquet)")
+    elif not paths.resolve(leg).is_file():
+        problems.append(f"legacy_benchmark: {paths.resolve(leg)} is not a file")
+    checks = {"scannet_root": "a folder holding <scene>/ folders (ScanNet scans/)",
+              "waymo_root": "a folder holding <component>/<segment>.parquet",
+              "omni6d_root": "a folder holding ROPE/ and Meta/"}
+    for key, what in checks.items():
+        v = params.get(key)
+        if not v:
+            problems.append(f"{key}: not given ({what})")
+            continue
+        p = paths.resolve(v)
+        if not p.is_dir():
+            problems.append(f"{key}: {p} is not a folder ({what})")
+        elif key == "waymo_root":
+            for comp in ("vehicle_pose", "camera_calibration", "camera_image", "lidar_box"):
+                if not (p / comp).is_dir():
+                    problems.append(f"{key}: {p / comp} missing (Waymo v2 component {comp})")
+        elif key == "omni6d_root":
+            for sub in ("ROPE", "Meta/real_obj_meta.json"):
+                if not (p / sub).exists():
+                    problems.append(f"{key}: {p / sub} missing")
+    vm = params.get("video_map")
+    if vm and not paths.resolve(vm).is_file():
+        problems.append(f"video_map: {paths.resolve(vm)} is not a file")
+    return problems
