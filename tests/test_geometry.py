@@ -180,7 +180,7 @@ def test_pose_at_vectorised_matches_scalar_loop():
 
 def test_interval_shortened_at_trailing_invalid():
     tr = line_track(invalid=(8, 9, 10))
-    (t0, t1), ev = G.interval_valid(tr, 0.0, 1.0)
+    (_, t1), ev = G.interval_valid(tr, 0.0, 1.0)
     assert t1 == pytest.approx(0.7) and ev["shortened_to"] == pytest.approx(0.7)
     d, ev = G.endpoint_displacement(tr, 0.0, 1.0)
     assert d == pytest.approx(1.4) and ev["shortened_to"] == pytest.approx(0.7)
@@ -302,7 +302,7 @@ def test_segment_turns_straight_left_straight():
     pts = np.array(pts)
     R = np.stack([rz(y) for y in yaws])  # vehicle frame: forward +X
     tr = G.PoseTrack(np.arange(len(pts)) * dt, F.make_T(R, pts), name="car")
-    segs, ev = G.segment_turns(tr, 0.0, tr.times[-1], turn_threshold_deg=20, min_move_m=1.0,
+    segs, _ = G.segment_turns(tr, 0.0, tr.times[-1], turn_threshold_deg=20, min_move_m=1.0,
                                forward_axis=(1, 0, 0))
     assert [k for k, _ in segs] == ["move forward", "turn left", "move forward"]
     assert segs[1][1] == pytest.approx(90.0, abs=1.0)

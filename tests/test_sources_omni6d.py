@@ -96,7 +96,7 @@ def test_verify_convention_world_from_cam(tmp_path):
     holds = {(c["direction"], c["axes"]): c["holds"] for c in ev["candidates"]}
     assert holds == {("world_from_cam", "opencv"): True, ("cam_from_world", "opencv"): False,
                      ("world_from_cam", "opengl"): False, ("cam_from_world", "opengl"): False}
-    best = [c for c in ev["candidates"] if c["holds"]][0]
+    best = next(c for c in ev["candidates"] if c["holds"])
     assert best["median_residual_m"] < 1e-9
 
 

@@ -33,8 +33,7 @@ def write_sens(path, poses, color_sizes=None, depth_sizes=None, version=4):
         f.write(struct.pack("<I", version))
         name = b"StructureSensor"
         f.write(struct.pack("<Q", len(name)) + name)
-        for M in (K, np.eye(4), K, np.eye(4)):
-            f.write(struct.pack("<16f", *np.asarray(M, float).reshape(-1)))
+        f.writelines(struct.pack("<16f", *np.asarray(M, float).reshape(-1)) for M in (K, np.eye(4), K, np.eye(4)))
         f.write(struct.pack("<ii", 2, 1))  # jpeg, zlib_ushort
         f.write(struct.pack("<4I", 1296, 968, 640, 480))
         f.write(struct.pack("<f", 1000.0))
@@ -238,17 +237,17 @@ def test_missing_axis_alignment_only_when_needed(tmp_path):
     assert len(sc.camera_track()) == 3  # poses do not need the annotation frame
     inst = sc.instances  # raw vertices load fine
     with pytest.raises(InputError) as e:
-        sc.axis_alignment
+        _ = sc.axis_alignment
     assert e.value.field == "axisAlignment" and e.value.file.endswith(f"{SCENE}.txt")
     with pytest.raises(InputError) as e:
-        inst[0].aabb_ann
+        _ = inst[0].aabb_ann
     assert e.value.field == "axisAlignment" and e.value.file.endswith(f"{SCENE}.txt")
 
 
 def test_segs_vertex_mismatch(tmp_path):
     root = write_scene(tmp_path / "scans", n_segs_extra=3)
     with pytest.raises(InputError) as e:
-        S.ScanNetScene(root, SCENE).instances
+        _ = S.ScanNetScene(root, SCENE).instances
     assert e.value.field == "segIndices"
 
 

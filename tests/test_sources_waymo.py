@@ -18,9 +18,9 @@ SEG = "1234567890_1000_000_1020_000"
 T0 = 1_552_440_195_362_591  # micros of the first frame
 
 
-def transform_col(mats, dtype=pa.float64()):
+def transform_col(mats):
     flat = np.asarray(mats, dtype=np.float64).reshape(-1)
-    return pa.FixedSizeListArray.from_arrays(pa.array(flat, type=dtype), 16)
+    return pa.FixedSizeListArray.from_arrays(pa.array(flat, type=pa.float64()), 16)
 
 
 def rz4(deg, t):

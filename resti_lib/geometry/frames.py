@@ -25,19 +25,19 @@ from resti_lib.errors import InputError
 __all__ = [
     "R_CV_FROM_WAYMO",
     "R_WAYMO_FROM_CV",
-    "T_WAYMO_CAM_FROM_CV_CAM",
     "T_CV_CAM_FROM_WAYMO_CAM",
-    "make_T",
-    "invert_T",
+    "T_WAYMO_CAM_FROM_CV_CAM",
     "apply_T",
     "check_rotation",
-    "quat_wxyz_to_matrix",
+    "invert_T",
+    "make_T",
     "matrix_to_quat_wxyz",
-    "yaw_matrix",
-    "waymo_cam_pose_to_opencv",
     "opencv_cam_pose_to_waymo",
-    "waymo_to_opencv_points",
     "opencv_to_waymo_points",
+    "quat_wxyz_to_matrix",
+    "waymo_cam_pose_to_opencv",
+    "waymo_to_opencv_points",
+    "yaw_matrix",
 ]
 
 #: Rotation taking Waymo camera-axis coordinates to OpenCV camera-axis coordinates:

@@ -19,8 +19,9 @@ interval. Operators follow three rules:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -29,17 +30,17 @@ from resti_lib.errors import ContractError, InputError
 
 __all__ = [
     "PoseTrack",
-    "pose_at",
-    "positions_at",
-    "interval_valid",
-    "endpoint_displacement",
-    "path_length",
-    "average_velocity",
-    "average_speed",
     "acceleration",
+    "average_speed",
+    "average_velocity",
+    "endpoint_displacement",
     "heading_change",
     "horizontal_heading_deg",
+    "interval_valid",
     "legacy_plane_angle",
+    "path_length",
+    "pose_at",
+    "positions_at",
     "segment_turns",
     "wrap_deg",
 ]
@@ -347,7 +348,7 @@ def _interval_samples(track: PoseTrack, t0: float, t1: float, rule: str, tol: fl
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Times, positions and source indices of ``[p(t0), interior samples, p(t1)]``."""
     (t0, t1), ev = interval_valid(track, t0, t1, tol=tol)
-    p_end, ev_end = positions_at(track, np.array([t0, t1]), rule, tol)
+    p_end, _ = positions_at(track, np.array([t0, t1]), rule, tol)
     times = track.times
     idx = np.flatnonzero((times > t0 + tol) & (times < t1 - tol))
     bad = idx[~track.valid[idx]]

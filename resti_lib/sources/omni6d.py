@@ -45,7 +45,7 @@ except ImportError:  # pragma: no cover
     ImageMetaData = ObjectMetaData = None
     HAVE_CUTOOP = False
 
-__all__ = ["HAVE_CUTOOP", "CONVENTIONS", "load_frame_meta", "load_object_meta", "RopeScene"]
+__all__ = ["CONVENTIONS", "HAVE_CUTOOP", "RopeScene", "load_frame_meta", "load_object_meta"]
 
 #: OpenGL camera axes (+X right, +Y up, +Z backward) -> OpenCV: flip Y and Z.
 T_GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -273,7 +273,7 @@ class RopeScene:
             inside = front & (u >= 0) & (u < K[:, 4]) & (v >= 0) & (v < K[:, 5])
             frac = float(inside.mean())
             resid = float(np.median(np.linalg.norm(pc - Pc_stored_cv, axis=1)))
-            cands.append({"direction": direction, "axes": axes, "n_objects": int(len(Pw)),
+            cands.append({"direction": direction, "axes": axes, "n_objects": len(Pw),
                           "n_positive_depth": int(front.sum()), "n_inside_image": int(inside.sum()),
                           "inside_fraction": frac, "median_residual_m": resid,
                           "holds": bool(front.all() and frac >= min_inside)})

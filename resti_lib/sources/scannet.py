@@ -32,18 +32,18 @@ from resti_lib.geometry.frames import apply_T, check_rotation, invert_T, make_T,
 from resti_lib.geometry.trajectory import PoseTrack
 
 __all__ = [
-    "ScanNetMeta",
-    "SensHeader",
-    "SensPoses",
     "OrientedBox",
     "ScanNetInstance",
+    "ScanNetMeta",
     "ScanNetScene",
+    "SensHeader",
+    "SensPoses",
+    "read_instances",
+    "read_pose_dir",
+    "read_pose_txt",
     "read_scene_meta",
     "read_sens_header",
     "read_sens_poses",
-    "read_pose_txt",
-    "read_pose_dir",
-    "read_instances",
     "upright_oriented_box",
 ]
 
@@ -248,7 +248,7 @@ def read_sens_poses(path: str | Path, *, rotation_tol: float = ROTATION_TOL) -> 
     """
     path = Path(path)
     try:
-        f = open(path, "rb", buffering=0)
+        f = open(path, "rb", buffering=0)  # noqa: SIM115 -- closed by the with-block below
     except OSError as e:
         raise InputError(f"cannot open .sens: {e}", file=path) from None
     with f:
@@ -372,7 +372,7 @@ class OrientedBox:
         s = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
         return apply_T(self.T, s * self.lwh)
 
-    def transformed(self, T_new_from_frame: np.ndarray) -> "OrientedBox":
+    def transformed(self, T_new_from_frame: np.ndarray) -> OrientedBox:
         """The same box expressed in another frame (rigid ``T_new_from_frame``)."""
         T = np.asarray(T_new_from_frame, dtype=np.float64) @ self.T
         return OrientedBox(T[:3, 3].copy(), T[:3, :3].copy(), self.lwh.copy())
@@ -499,7 +499,7 @@ def read_instances(scene_dir: str | Path, scene: str, axis_alignment: np.ndarray
         raise InputError("missing key", file=agg_path, field="segGroups")
     try:
         mesh = trimesh.load(ply_path, file_type="ply", process=False)
-    except Exception as e:  # trimesh raises many types on bad files
+    except Exception as e:  # noqa: BLE001 -- trimesh raises many types on bad files
         raise InputError(f"cannot load mesh: {e}", file=ply_path, field="vertex") from None
     V = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=np.float64)
     if V.shape[0] != seg_idx.shape[0]:

@@ -31,23 +31,23 @@ from resti_lib.geometry.frames import T_WAYMO_CAM_FROM_CV_CAM, check_rotation, m
 from resti_lib.geometry.trajectory import PoseTrack
 
 __all__ = [
-    "CAMERA_NAMES",
     "BOX_TYPES",
-    "KEY_SEGMENT",
-    "KEY_MICROS",
-    "KEY_CAMERA",
-    "KEY_OBJECT",
-    "VEHICLE_POSE",
     "CAL_EXTRINSIC",
+    "CAMERA_NAMES",
     "IMG_POSE",
     "IMG_POSE_TIMESTAMP",
+    "KEY_CAMERA",
+    "KEY_MICROS",
+    "KEY_OBJECT",
+    "KEY_SEGMENT",
+    "VEHICLE_POSE",
+    "WaymoSegment",
     "camera_number",
-    "read_columns",
-    "read_vehicle_pose",
     "read_camera_calibration",
     "read_camera_image_poses",
+    "read_columns",
     "read_lidar_boxes",
-    "WaymoSegment",
+    "read_vehicle_pose",
 ]
 
 CAMERA_NAMES = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
@@ -106,7 +106,7 @@ def read_columns(path: str | Path, required: list[str], optional: list[str] = ()
         raise InputError("parquet file not found", file=path)
     try:
         names = set(pq.read_schema(path).names)
-    except Exception as e:  # pyarrow raises ArrowInvalid/OSError on non-parquet input
+    except (pa.ArrowException, OSError) as e:  # not a parquet file
         raise InputError(f"not a readable parquet file: {e}", file=path) from None
     for c in required:
         if c not in names:
