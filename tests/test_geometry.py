@@ -320,3 +320,31 @@ def test_segment_turns_stationary():
     tr = cam_track([0.0] * 10)
     segs, ev = G.segment_turns(tr, 0.0, 9.0)
     assert segs == [] and ev["summary"] == "no significant movement"
+
+
+def drive(profile, dt=0.1):
+    """Integrate (duration s, speed m/s, yaw rate deg/s) pieces into a vehicle track (forward +X)."""
+    x = y = yaw = 0.0
+    pts, yaws = [[0.0, 0.0, 0.0]], [0.0]
+    for dur, v, rate in profile:
+        for _ in range(round(dur / dt)):
+            yaw += rate * dt
+            x += v * dt * math.cos(math.radians(yaw))
+            y += v * dt * math.sin(math.radians(yaw))
+            pts.append([x, y, 0.0])
+            yaws.append(yaw)
+    R = np.stack([rz(a) for a in yaws])
+    return G.PoseTrack(np.arange(len(pts)) * dt, F.make_T(R, np.array(pts)), name="drive")
+
+
+def test_segment_turns_pause_inside_turn_and_small_wiggles():
+    # 10 s straight at 5 m/s; left 45 deg; 0.1 s pause at 2 m/s (0.2 m < min_move); left 45 deg;
+    # 10 s straight with a 5 deg wiggle (below the 15 deg threshold) in the middle
+    tr = drive([(10, 5, 0), (3, 5, 15), (0.1, 2, 0), (3, 5, 15), (5, 5, 0), (1, 5, 5), (1, 5, -5), (3, 5, 0)])
+    segs, ev = G.segment_turns(tr, 0.0, float(tr.times[-1]), forward_axis=(1, 0, 0), turn_threshold_deg=15,
+                               min_move_m=1.0, turn_rate_deg_s=3.0)
+    assert [k for k, _ in segs] == ["move forward", "turn left", "move forward"]
+    assert segs[1][1] == pytest.approx(90.0, abs=1e-9)  # both halves and the pause: one 90 deg turn
+    assert segs[0][1] == pytest.approx(50.0, abs=1e-9)  # 10 s at 5 m/s
+    assert segs[2][1] == pytest.approx(50.0, abs=1e-9)  # 5 + 1 + 1 + 3 s at 5 m/s (wiggle included)
+    assert ev["distance_while_turning_m"] == pytest.approx(30.2, abs=1e-9)  # 6 s at 5 m/s + 0.2 m

@@ -76,6 +76,7 @@ class PoseTrack:
     valid: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     _quat: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _invalid_cum: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.times = np.asarray(self.times, dtype=np.float64).reshape(-1)
@@ -119,6 +120,26 @@ class PoseTrack:
                 q[self.valid] = Rotation.from_matrix(self.rotations[self.valid]).as_quat()
             self._quat = q
         return self._quat
+
+    @property
+    def invalid_cum(self) -> np.ndarray:
+        """``[N + 1]`` counts of invalid samples before each index (cached), for O(1) range counts."""
+        if self._invalid_cum is None:
+            self._invalid_cum = np.concatenate([[0], np.cumsum(~self.valid)])
+        return self._invalid_cum
+
+    @property
+    def last_valid_index(self) -> int | None:
+        """Index of the last valid sample, None when no sample is valid."""
+        cum = self.invalid_cum
+        n = len(self)
+        if cum[-1] == n:
+            return None
+        # trailing invalid run: the samples after the last valid one are all invalid
+        k = n - 1
+        if self.valid[k]:
+            return k
+        return int(np.flatnonzero(self.valid)[-1])
 
     def describe(self) -> dict:
         """Small evidence dict naming the track."""
@@ -324,10 +345,9 @@ def interval_valid(track: PoseTrack, t0: float, t1: float, *, tol: float = DEFAU
         if tt < times[0] - tol or tt > times[-1] + tol:
             raise ContractError(f"{track.name}: t={tt:.6f} s outside the track "
                                 f"[{times[0]:.6f}, {times[-1]:.6f}] s")
-    valid_idx = np.flatnonzero(track.valid)
-    if valid_idx.size == 0:
+    last = track.last_valid_index
+    if last is None:
         raise ContractError(f"{track.name}: no valid pose in the track")
-    last = int(valid_idx[-1])
     if t1 > times[last] + tol:
         t_last = float(times[last])
         if t_last <= t0 + tol and t1 > t0:
@@ -336,8 +356,9 @@ def interval_valid(track: PoseTrack, t0: float, t1: float, *, tol: float = DEFAU
         ev.update({"shortened_to": t_last, "shortened_from": t1, "last_valid_index": last,
                    "reason": f"trailing invalid poses from sample {last + 1}"})
         t1 = t_last
-    inside = (times > t0 + tol) & (times < t1 - tol)
-    n_bad = int((inside & ~track.valid).sum())
+    lo = int(np.searchsorted(times, t0 + tol, side="right"))  # first sample > t0 + tol
+    hi = int(np.searchsorted(times, t1 - tol, side="left"))  # first sample >= t1 - tol
+    n_bad = int(track.invalid_cum[max(hi, lo)] - track.invalid_cum[lo])
     if n_bad:
         ev["invalid_inside"] = n_bad
     ev["t1_used"] = t1
@@ -350,7 +371,9 @@ def _interval_samples(track: PoseTrack, t0: float, t1: float, rule: str, tol: fl
     (t0, t1), ev = interval_valid(track, t0, t1, tol=tol)
     p_end, _ = positions_at(track, np.array([t0, t1]), rule, tol)
     times = track.times
-    idx = np.flatnonzero((times > t0 + tol) & (times < t1 - tol))
+    lo = int(np.searchsorted(times, t0 + tol, side="right"))
+    hi = int(np.searchsorted(times, t1 - tol, side="left"))
+    idx = np.arange(lo, max(hi, lo))
     bad = idx[~track.valid[idx]]
     if bad.size:
         if gaps == "error":
@@ -627,54 +650,54 @@ def segment_turns(track: PoseTrack, t0: float, t1: float, *, turn_threshold_deg:
         rate = np.where(dt > 0, dpsi / np.where(dt > 0, dt, 1.0), 0.0)
     label = np.where(np.abs(rate) >= turn_rate_deg_s, np.sign(dpsi), 0).astype(int)
 
-    # runs: [label, k_start, k_end (exclusive), distance, dpsi]
-    runs: list[list] = []
-    if label.size:
-        cuts = np.flatnonzero(np.diff(label)) + 1
-        starts = np.concatenate([[0], cuts])
-        ends = np.concatenate([cuts, [label.size]])
-        cs = np.concatenate([[0.0], np.cumsum(ds)])
-        for a, b in zip(starts, ends):
-            runs.append([int(label[a]), int(a), int(b), float(cs[b] - cs[a]), float(psi[b] - psi[a])])
+    cs = np.concatenate([[0.0], np.cumsum(ds)])
 
-    def merge(rs: list[list]) -> list[list]:
-        out: list[list] = []
-        for r in rs:
-            if out and out[-1][0] == r[0]:
-                out[-1][2] = r[2]
-                out[-1][3] += r[3]
-                out[-1][4] += r[4]
-            else:
-                out.append(list(r))
-        return out
+    def runs_of(lab_steps: np.ndarray):
+        """Maximal runs of equal step labels: (label, start, end (exclusive), distance, d psi)."""
+        if lab_steps.size == 0:
+            e = np.zeros(0, dtype=int)
+            return e, e, e, np.zeros(0), np.zeros(0)
+        cuts = np.flatnonzero(np.diff(lab_steps)) + 1
+        a = np.concatenate([[0], cuts])
+        b = np.concatenate([cuts, [lab_steps.size]])
+        return lab_steps[a], a, b, cs[b] - cs[a], psi[b] - psi[a]
 
-    runs = merge(runs)
-    # a short pause between two turns of the same sign belongs to the turn
-    for k in range(1, len(runs) - 1):
-        if runs[k][0] == 0 and runs[k][3] < min_move_m and runs[k - 1][0] == runs[k + 1][0] != 0:
-            runs[k][0] = runs[k - 1][0]
-    runs = merge(runs)
-    for r in runs:
-        if r[0] != 0 and abs(r[4]) < turn_threshold_deg:
-            r[0] = 0
-    runs = merge(runs)
-    dropped = sum(r[3] for r in runs if r[0] == 0 and r[3] < min_move_m)
-    runs = merge([r for r in runs if not (r[0] == 0 and r[3] < min_move_m)])
+    # 3. a short pause between two turns of the same sign belongs to the turn
+    lab, a, b, dist, dp = runs_of(label)
+    if lab.size > 2:
+        pause = (lab[1:-1] == 0) & (dist[1:-1] < min_move_m) & (lab[:-2] == lab[2:]) & (lab[:-2] != 0)
+        lab = lab.copy()
+        lab[1:-1][pause] = lab[:-2][pause]
+        label = np.repeat(lab, b - a)
+    # 4. small turns are moves; short moves are dropped and their neighbours merge
+    lab, a, b, dist, dp = runs_of(label)
+    lab = np.where((lab != 0) & (np.abs(dp) < turn_threshold_deg), 0, lab)
+    lab, a, b, dist, dp = runs_of(np.repeat(lab, b - a))
+    short = (lab == 0) & (dist < min_move_m)
+    dropped = float(dist[short].sum())
+    lab, a, b, dist, dp = lab[~short], a[~short], b[~short], dist[~short], dp[~short]
+    if lab.size:
+        first = np.concatenate([[0], np.flatnonzero(np.diff(lab)) + 1])
+        last = np.concatenate([first[1:] - 1, [lab.size - 1]])
+        runs = zip(lab[first], a[first], b[last], np.add.reduceat(dist, first), np.add.reduceat(dp, first))
+    else:
+        runs = iter(())
 
     segments: list[tuple[str, float]] = []
     details = []
     turning_distance = 0.0
-    for lab, a, b, dist, dp in runs:
-        if lab == 0:
-            segments.append(("move forward", dist))
+    for lab_k, a_k, b_k, dist_k, dp_k in runs:
+        dist_k, dp_k = float(dist_k), float(dp_k)
+        if lab_k == 0:
+            segments.append(("move forward", dist_k))
         else:
-            segments.append(("turn left" if dp > 0 else "turn right", abs(dp)))
-            turning_distance += dist
-        details.append({"kind": segments[-1][0], "t_start": float(ts[a]), "t_end": float(ts[b]),
-                        "distance_m": dist, "heading_change_deg": dp})
+            segments.append(("turn left" if dp_k > 0 else "turn right", abs(dp_k)))
+            turning_distance += dist_k
+        details.append({"kind": segments[-1][0], "t_start": float(ts[a_k]), "t_end": float(ts[b_k]),
+                        "distance_m": dist_k, "heading_change_deg": dp_k})
     ev.update(track.describe())
     ev.update({"segments": details, "path_length_m": float(ds.sum()),
-               "unreported_short_moves_m": float(dropped), "distance_while_turning_m": turning_distance,
+               "unreported_short_moves_m": dropped, "distance_while_turning_m": turning_distance,
                "params": {"turn_threshold_deg": turn_threshold_deg, "min_move_m": min_move_m,
                           "turn_rate_deg_s": turn_rate_deg_s,
                           "forward_axis": _unit(forward_axis, "forward_axis").tolist(),
