@@ -424,8 +424,7 @@ def _op_pose(ctx: MeasureContext) -> tuple[Any, dict]:
     et = ctx.entity_track()
     _describe(ctx, et)
     T, ev = G.pose_at(et.track, ctx.t0, ctx.rule, ctx.tol)
-    ev["matrix"] = "T_world<-cam (camera-to-world), OpenCV camera axes, row-major" \
-        if ctx.entity["kind"] == "camera" else "T_world<-entity, row-major"
+    ev["matrix"] = f"T_world<-entity (entity-to-world, row-major); entity: {et.subject}"
     if "frames" in et.track.meta:
         ev["frames"] = [int(et.track.meta["frames"][i]) for i in ev["indices"]]
     if "micros" in et.track.meta:

@@ -307,7 +307,7 @@ def positions_at(track: PoseTrack, t: float | np.ndarray, rule: str = "linear",
     p = np.where((alpha == 0.0)[..., None], track.T[i0, :3, 3], p)
     if t_arr.ndim == 0:
         return p, {"rule": rule, "t": float(t_arr), "indices": sorted({int(i0), int(i1)}),
-                   "alpha": float(alpha)}
+                   "times": sorted({float(track.times[i0]), float(track.times[i1])}), "alpha": float(alpha)}
     return p, {"rule": rule, "n": int(t_arr.size)}
 
 
@@ -408,7 +408,7 @@ def endpoint_displacement(track: PoseTrack, t0: float, t1: float, *, rule: str =
     d = p1 - p0
     ev.update(track.describe())
     ev.update({"rule": rule, "indices_t0": e0["indices"], "indices_t1": e1["indices"],
-               "vector": d.tolist()})
+               "sample_times_t0": e0["times"], "sample_times_t1": e1["times"], "vector": d.tolist()})
     return float(np.linalg.norm(d)), ev
 
 

@@ -551,14 +551,18 @@ class ScanNetScene:
         Frame rate mapping sensor frame ``k`` to ``t = k / fps`` (default 30).
     pose_source : {"auto", "sens", "pose_dir"}
         ``auto`` reads ``<scene>.sens`` when present, else the exported ``pose/`` folder.
+    rotation_tol : float
+        Largest ``|R R^T - I|`` accepted for a finite pose (poses are stored as float32).
     """
 
-    def __init__(self, root: str | Path, scene: str, fps: float = 30.0, *, pose_source: str = "auto"):
+    def __init__(self, root: str | Path, scene: str, fps: float = 30.0, *, pose_source: str = "auto",
+                 rotation_tol: float = ROTATION_TOL):
         self.root = Path(root)
         self.scene = scene
         self.fps = float(fps)
         self.dir = self.root / scene
         self.pose_source = pose_source
+        self.rotation_tol = float(rotation_tol)
         if not self.dir.is_dir():
             raise InputError("scene folder not found", file=self.dir, field="sequence")
 
@@ -607,10 +611,10 @@ class ScanNetScene:
     def _poses(self) -> tuple[np.ndarray, np.ndarray, str, list[str] | None]:
         use_sens = self.pose_source == "sens" or (self.pose_source == "auto" and self.sens_path.exists())
         if use_sens:
-            sp = read_sens_poses(self.sens_path)
+            sp = read_sens_poses(self.sens_path, rotation_tol=self.rotation_tol)
             return np.arange(sp.T.shape[0]), sp.T, str(self.sens_path), None
         if self.pose_source in ("auto", "pose_dir") and self.pose_dir.is_dir():
-            frames, T, files = read_pose_dir(self.pose_dir)
+            frames, T, files = read_pose_dir(self.pose_dir, rotation_tol=self.rotation_tol)
             return frames, T, str(self.pose_dir), [str(p) for p in files]
         raise InputError("no camera poses: neither <scene>.sens nor pose/ found", file=self.dir,
                          field="pose")
