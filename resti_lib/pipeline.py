@@ -30,11 +30,45 @@ def stage_params(stage: dict, common: dict) -> tuple[Path, dict]:
     return nb, merged
 
 
+def ensure_world(cfg: dict) -> Path | None:
+    """Generate the embedded mini-world when the params point at it and it is absent.
+
+    The orchestrator only *creates input data* here; the audit itself never imports the generator
+    nor reads its manifest.
+    """
+    world = cfg.get("world_dir")
+    if not world:
+        return None
+    world = paths.resolve(world)
+    if (world / "legacy" / "qa.parquet").exists():
+        return world
+    from .synth import generate
+
+    t0 = time.perf_counter()
+    print(f"resti run: generating the mini-world in {world} ...", file=sys.stderr)
+    generate(world, seed=int(cfg.get("world_seed", 0)))
+    print(f"resti run: mini-world ready ({time.perf_counter() - t0:.1f}s)", file=sys.stderr)
+    return world
+
+
+def missing_inputs(cfg: dict) -> list[str]:
+    """Every input path of the params that does not exist (one message for all of them)."""
+    from .sources.context import check_real_params
+
+    return check_real_params(cfg)
+
+
 def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int | None = None) -> int:
     """Run the stages of ``params_file``; returns a process exit code."""
     cfg = load_params(params_file)
     stages = cfg.get("stages") or []
     common = {k: v for k, v in cfg.items() if k != "stages"}
+    ensure_world(cfg)
+    problems = missing_inputs(cfg) if "legacy_benchmark" in cfg else []
+    if problems:
+        print("resti run: the params name inputs that are missing or wrong:\n  - " + "\n  - ".join(problems),
+              file=sys.stderr)
+        return 2
     if only:
         stages = [s for s in stages if s["notebook"] in only or s["notebook"].split("_", 1)[-1] in only]
         if not stages:

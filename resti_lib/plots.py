@@ -60,3 +60,33 @@ def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_l
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def audit_overview(coverage: pd.DataFrame, categories: pd.DataFrame, path: Path, *, title: str = "") -> Path:
+    """(a) accepted and excluded questions per task, with counts; (b) defect reports per category."""
+    cov = coverage[coverage["task"] != "Total"]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10.5, 3.6), gridspec_kw={"width_ratios": [1.35, 1]})
+    y = np.arange(len(cov))[::-1]
+    a.barh(y, cov["accepted"], color="#2c7fb8", label="accepted")
+    a.barh(y, cov["excluded"], left=cov["accepted"], color="#d95f0e", label="excluded")
+    for yi, acc, exc in zip(y, cov["accepted"], cov["excluded"]):
+        a.text(acc + exc + max(cov["total"]) * 0.01, yi, f"{acc} / {exc}", va="center", fontsize=7)
+    a.set_yticks(y, cov["task"])
+    a.set_xlabel("questions (accepted / excluded)")
+    a.set_xlim(0, max(cov["total"]) * 1.25 if len(cov) else 1)
+    a.legend(frameon=False, loc="lower right")
+    a.set_title("(a) accepted and excluded per task", loc="left", fontsize=8)
+    if len(categories):
+        yb = np.arange(len(categories))[::-1]
+        b.barh(yb, categories["reports"], color="#756bb1")
+        for yi, n, s in zip(yb, categories["reports"], categories["share"]):
+            b.text(n, yi, f" {n} ({s:.0%})", va="center", fontsize=7)
+        b.set_yticks(yb, categories["category"])
+        b.set_xlim(0, categories["reports"].max() * 1.3)
+    b.set_xlabel("defect reports (one row can report several)")
+    b.set_title(f"(b) {int(categories['reports'].sum()) if len(categories) else 0} defect reports by category",
+                loc="left", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path)

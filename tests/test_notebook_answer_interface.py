@@ -25,7 +25,7 @@ def _release(tmp_path, n=12):
 def test_notebook_runs_and_writes_tables(tmp_path):
     rel = _release(tmp_path)
     out = tmp_path / "ai"
-    run = run_notebook(NB, {"release_path": str(rel), "output_dir": str(out), "figure_dir": str(tmp_path / "f")},
+    run = run_notebook(NB, {"release_path": str(rel), "audit_dir": str(out), "figure_dir": str(tmp_path / "f")},
                        out_dir=tmp_path / "nb", html_dir=tmp_path / "html")
     assert run.html.exists() and run.html.stat().st_size > 10_000
     v = json.loads((out / "validation_release.json").read_text())
@@ -42,7 +42,7 @@ def test_failing_cell_names_notebook_and_cell(tmp_path):
     r0["Candidates"]["B"] = r0["Candidates"]["C"]  # duplicate strings: verify fails, the notebook asserts
     (rel / "resti.jsonl").write_text("\n".join([json.dumps(r0)] + lines[1:]) + "\n")
     with pytest.raises(NotebookError) as e:
-        run_notebook(NB, {"release_path": str(rel), "output_dir": str(tmp_path / "ai"),
+        run_notebook(NB, {"release_path": str(rel), "audit_dir": str(tmp_path / "ai"),
                           "figure_dir": str(tmp_path / "f")}, out_dir=tmp_path / "nb", html_dir=tmp_path / "h")
     msg = str(e.value)
     assert "00_answer_interface.ipynb" in msg and "code cell" in msg and "AssertionError" in msg

@@ -81,17 +81,32 @@ class SourceContext:
 
 
 def check_real_params(params: dict) -> list[str]:
-    """Everything missing or wrong in a real-data params file, as one list of messages."""
+    """Everything missing or wrong in a real-data params file, as one list of messages.
+
+    Source roots are required for the sources the legacy benchmark uses (all three when the
+    benchmark itself cannot be read).
+    """
     problems = []
     leg = params.get("legacy_benchmark")
+    needed = set(ROOT_KEYS)
     if not leg:
         problems.append("legacy_benchmark: not given (the STI-Bench qa.parquet)")
     elif not paths.resolve(leg).is_file():
         problems.append(f"legacy_benchmark: {paths.resolve(leg)} is not a file")
+    else:
+        try:
+            import pandas as pd
+
+            needed = set(pd.read_parquet(paths.resolve(leg), columns=["Source"])["Source"]) & set(ROOT_KEYS)
+        except Exception as e:  # a damaged file is reported by the loader with file/row/field
+            problems.append(f"legacy_benchmark: {paths.resolve(leg)} cannot be read ({e})")
     checks = {"scannet_root": "a folder holding <scene>/ folders (ScanNet scans/)",
               "waymo_root": "a folder holding <component>/<segment>.parquet",
               "omni6d_root": "a folder holding ROPE/ and Meta/"}
+    wanted = {ROOT_KEYS[s] for s in needed}
     for key, what in checks.items():
+        if key not in wanted:
+            continue
         v = params.get(key)
         if not v:
             problems.append(f"{key}: not given ({what})")

@@ -1,0 +1,155 @@
+"""The report's statistics tables, computed from a release's provenance (and the legacy benchmark).
+
+Every function returns a DataFrame; ``notebooks/99_release_report.ipynb`` writes them with
+:func:`resti_lib.tables.write_table` (markdown, CSV, LaTeX).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pandas as pd
+
+from . import SOURCES, TASKS
+from .defects import DEFECTS
+
+VERDICT_ORDER = ("retained", "corrected", "re-contracted", "excluded")
+QUESTION_DEFECTS = ("pose_time_omitted", "ambiguous_subject", "unnamed_frame", "unit_tag_missing",
+                    "statistic_unnamed", "zero_length_interval", "premise_equals_answer", "grouped_referent",
+                    "multiple_instances", "no_source_instance", "not_visible")
+ANSWER_DEFECTS = ("key_detail_mismatch", "duplicate_options_exact", "duplicate_options_numeric",
+                  "pose_identical_rotations", "orientation_symmetric_grid", "orientation_smallest_correct")
+SOURCE_DEFECTS = ("grounding_alignment_omitted", "orientation_xz_plane", "waymo_pose_wrong_timestamp",
+                  "speed_is_displacement_over_time", "trajectory_10m_grid", "value_mismatch")
+
+
+def _task_index(tasks) -> list[str]:
+    return [t for t in TASKS if t in set(tasks)] + sorted(set(tasks) - set(TASKS))
+
+
+def _defects(prov: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for r in prov.itertuples():
+        for d in json.loads(r.defects or "[]"):
+            rows.append({"task": r.task, "source": r.source, "defect": d})
+    return pd.DataFrame(rows, columns=["task", "source", "defect"])
+
+
+def coverage_table(prov: pd.DataFrame) -> pd.DataFrame:
+    """Accepted and excluded by task, with the per-source split (the report's coverage table)."""
+    out = []
+    for task in _task_index(prov["task"]):
+        g = prov[prov["task"] == task]
+        row = {"task": task}
+        for s in SOURCES:
+            gs = g[g["source"] == s]
+            if len(gs):
+                row[f"{s} accepted"] = int((gs["verdict"] != "excluded").sum())
+                row[f"{s} excluded"] = int((gs["verdict"] == "excluded").sum())
+        row["accepted"] = int((g["verdict"] != "excluded").sum())
+        row["excluded"] = int((g["verdict"] == "excluded").sum())
+        row["total"] = len(g)
+        out.append(row)
+    df = pd.DataFrame(out).fillna(0)
+    total = {"task": "Total", **{c: int(df[c].sum()) for c in df.columns if c != "task"}}
+    df = pd.concat([df, pd.DataFrame([total])], ignore_index=True)
+    num = [c for c in df.columns if c != "task"]
+    df[num] = df[num].astype(int)
+    return df
+
+
+def source_table(prov: pd.DataFrame) -> pd.DataFrame:
+    out = []
+    for s in [x for x in SOURCES if x in set(prov["source"])]:
+        g = prov[prov["source"] == s]
+        out.append({"source": s, "accepted": int((g["verdict"] != "excluded").sum()),
+                    "excluded": int((g["verdict"] == "excluded").sum()), "total": len(g)})
+    return pd.DataFrame(out)
+
+
+def verdict_table(prov: pd.DataFrame) -> pd.DataFrame:
+    t = prov.pivot_table(index="task", columns="verdict", aggfunc="size", fill_value=0)
+    t = t.reindex(columns=[v for v in VERDICT_ORDER], fill_value=0)
+    t = t.reindex(_task_index(prov["task"]))
+    t.loc["Total"] = t.sum()
+    return t.reset_index().rename(columns={"index": "task"})
+
+
+def _defect_counts(prov: pd.DataFrame, codes) -> pd.DataFrame:
+    d = _defects(prov)
+    d = d[d["defect"].isin(codes)]
+    t = d.pivot_table(index="task", columns="defect", aggfunc="size", fill_value=0) if len(d) else \
+        pd.DataFrame(index=pd.Index([], name="task"))
+    t = t.reindex(columns=[c for c in codes if c in set(d["defect"])], fill_value=0)
+    t = t.reindex([x for x in _task_index(prov["task"])], fill_value=0)
+    t.loc["Total"] = t.sum()
+    return t.reset_index().rename(columns={"index": "task"})
+
+
+def question_defect_table(prov: pd.DataFrame) -> pd.DataFrame:
+    """Rows per task with each question-layer defect (no pose time, ambiguous subject, unnamed frame...)."""
+    return _defect_counts(prov, QUESTION_DEFECTS)
+
+
+def answer_defect_table(prov: pd.DataFrame) -> pd.DataFrame:
+    """Rows per task with each answer-layer defect (key–detail mismatch, exact/numeric duplicates...)."""
+    return _defect_counts(prov, ANSWER_DEFECTS)
+
+
+def source_defect_table(prov: pd.DataFrame) -> pd.DataFrame:
+    return _defect_counts(prov, SOURCE_DEFECTS)
+
+
+def defect_category_table(prov: pd.DataFrame) -> pd.DataFrame:
+    """Defect reports per category (one row can report several); share of all reports."""
+    d = _defects(prov)
+    c = Counter(DEFECTS[x].category for x in d["defect"] if x in DEFECTS)
+    total = sum(c.values())
+    rows = [{"category": k, "reports": n, "share": n / total if total else 0.0} for k, n in c.most_common()]
+    return pd.DataFrame(rows, columns=["category", "reports", "share"])
+
+
+def exclusion_reason_table(excluded: list[dict]) -> pd.DataFrame:
+    c = Counter((r["task"], code) for r in excluded for code in r["reason_codes"])
+    rows = [{"task": t, "reason": code, "rows": n} for (t, code), n in c.items()]
+    df = pd.DataFrame(rows, columns=["task", "reason", "rows"])
+    order = {t: i for i, t in enumerate(TASKS)}
+    return df.sort_values(["task", "rows"], key=lambda s: s.map(order) if s.name == "task" else -s,
+                          kind="stable").reset_index(drop=True)
+
+
+def strongest_attacks(table: pd.DataFrame, label: str) -> pd.DataFrame:
+    """Per task: the strongest attack (pooled over sources) and the number of Holm-significant rows."""
+    out = []
+    for task in _task_index(table["task"]):
+        t = table[(table["task"] == task) & (table["source"] == "ALL") & (table["picked"] > 0)]
+        full = t[t["coverage"] >= 0.999]
+        best = (full if len(full) else t).sort_values(["accuracy", "hits"], ascending=False, kind="stable")
+        if best.empty:
+            continue
+        b = best.iloc[0]
+        out.append({"task": task, f"{label} strongest": b["attack"],
+                    f"{label} accuracy": f"{b['hits']}/{b['picked']} = {b['accuracy']:.1%}",
+                    f"{label} significant rows": int(table[(table["task"] == task)]["significant"].sum())})
+    return pd.DataFrame(out)
+
+
+def attacks_before_after(before: pd.DataFrame, after: pd.DataFrame) -> pd.DataFrame:
+    a, b = strongest_attacks(before, "before"), strongest_attacks(after, "after")
+    return a.merge(b, on="task", how="outer")
+
+
+def reference_comparison(ours: dict, reference: dict) -> pd.DataFrame:
+    """Our release's counts beside a reference release's (validation objects of ``resti verify``)."""
+    rows = []
+    for task in TASKS:
+        rows.append({"task": task,
+                     "ours accepted": ours["by_task"].get(task, 0),
+                     "ours excluded": ours["excluded_by_task"].get(task, 0),
+                     "reference accepted": reference["by_task"].get(task, 0),
+                     "reference excluded": reference["excluded_by_task"].get(task, 0)})
+    rows.append({"task": "Total", "ours accepted": ours["accepted_rows"], "ours excluded": ours["excluded_rows"],
+                 "reference accepted": reference["accepted_rows"],
+                 "reference excluded": reference["excluded_rows"]})
+    return pd.DataFrame(rows)
