@@ -153,8 +153,8 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
         (tmp / "validation.json").write_bytes((json.dumps(validation, indent=2, ensure_ascii=False) + "\n")
                                               .encode("utf-8"))
         if not validation["passed"]:
-            failed = [k for k, c in validation["checks"].items() if c["status"] == "fail"]
-            raise InvariantError(f"the assembled release fails verify: {failed} (see {tmp / 'validation.json'})")
+            failed = {k: c["failing"][:3] for k, c in validation["checks"].items() if c["status"] == "fail"}
+            raise InvariantError(f"the assembled release fails verify: {failed}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
         artifacts = {n: {"bytes": (tmp / n).stat().st_size, "sha256": sha256_file(tmp / n)} for n in names}
         meta = release_meta(accepted, excluded, artifacts)

@@ -271,10 +271,11 @@ def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
         if not isinstance(r["reason_codes"], list) or not r["reason_codes"]:
             problems.append(Problem("exclusion_reasons", rid, "reason_codes", "reason_codes is empty",
                                     str(file) if file else None))
-        if r.get("task") not in TASKS:
+        malformed = "malformed_row" in (r.get("reason_codes") or [])  # an unknown task/source is its reason
+        if r.get("task") not in TASKS and not malformed:
             problems.append(Problem("known_task", rid, "task", f"unknown task {r.get('task')!r}",
                                     str(file) if file else None))
-        if r.get("source") not in SOURCES:
+        if r.get("source") not in SOURCES and not malformed:
             problems.append(Problem("known_source", rid, "source", f"unknown source {r.get('source')!r}",
                                     str(file) if file else None))
     counts = Counter(r.get("key") for r in records)
