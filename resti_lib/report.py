@@ -32,10 +32,38 @@ def _section(title: str, items: list[str]) -> str:
     return f"<h2>{html.escape(title)}</h2>\n" + "\n".join(items)
 
 
+def summary_section(out_root: Path) -> str:
+    """Headline numbers and the key tables of the release, when the run produced them."""
+    import json
+
+    import pandas as pd
+
+    parts = []
+    meta_p = out_root / "release" / "release.json"
+    if meta_p.exists():
+        meta = json.loads(meta_p.read_text(encoding="utf-8"))
+        c = meta.get("counts", {})
+        letters = " ".join(f"{k} {v}" for k, v in meta.get("answer_letters", {}).items())
+        parts.append(f"<p><b>{c.get('original', 0):,}</b> legacy questions &rarr; <b>{c.get('accepted', 0):,}</b> "
+                     f"accepted and <b>{c.get('excluded', 0):,}</b> excluded with reasons. "
+                     f"Answer letters: {html.escape(letters)}.</p>")
+    for stem, caption in (("coverage_by_task", "Accepted and excluded by task"),
+                          ("verdicts", "Verdicts"), ("attacks_before_after", "Option-only attacks, before and after"),
+                          ("selftest_defect_recall", "Self-test: defects found against defects injected")):
+        csv = out_root / "tables" / f"{stem}.csv"
+        if csv.exists():
+            df = pd.read_csv(csv)
+            parts.append(f"<h3>{html.escape(caption)}</h3>" + df.to_html(index=False, border=0, na_rep="",
+                                                                           float_format=lambda x: f"{x:.3g}"))
+    return _section("Summary", parts) if parts else ""
+
+
 def write_index(out_root: Path | None = None, *, title: str = "resti audit report",
-                summary_html: str = "") -> Path:
+                summary_html: str | None = None) -> Path:
     """Write ``outputs/report/index.html`` for whatever the run produced."""
     out_root = Path(out_root or paths.OUTPUTS)
+    if summary_html is None:
+        summary_html = summary_section(out_root)
     report_dir = out_root / "report"
     index = report_dir / "index.html"
     nb_items = []
