@@ -29,3 +29,14 @@ def resti_v5_dir() -> Path:
 def real_vehicle_pose() -> Path:
     """The real Waymo v2 vehicle_pose parquet (199 frames)."""
     return _require(paths.real_waymo_vehicle_pose(), "real Waymo v2 vehicle_pose file")
+
+
+@pytest.fixture(scope="session")
+def miniworld(tmp_path_factory) -> Path:
+    """The default mini-world (seed 0), generated once per session into a temporary folder."""
+    from resti_lib.synth import generate
+
+    out = tmp_path_factory.mktemp("miniworld")
+    generate(out, seed=0)
+    return out
+
