@@ -1,0 +1,409 @@
+"""Pose Estimation: the camera pose at a stated time, in a stated world frame, axes and direction.
+
+Contract per source (stated in every rewritten question and in the provenance)
+------------------------------------------------------------------------------
+- ScanNet: world = the raw scan frame; ``P(t) = T_raw<-cam(t)`` from the ``.sens`` stream
+  (camera-to-world, OpenCV camera axes), ``t = frame / scannet_fps``.
+- Waymo: world = the segment's world frame; ``P(t) = world_from_vehicle(t) @ extrinsic(camera)``
+  re-expressed in OpenCV camera axes (``@ T_waymo_cam<-cv_cam``), ``t = (micros - first) / 1e6``.
+- Omni6DPose: world = the OpenCV camera frame at the premise time (t = 0 s, the identity);
+  ``P(t) = T_c0<-cam(t)`` after the stored camera convention is verified against the objects.
+
+The pose at an asked time is the source sample nearest to it (``pose_rule``), within half the
+median sampling interval; an invalid pose there is an exclusion (``invalid_pose_at_time``).
+
+Diagnosis
+---------
+- Premise: the pose printed in the question is matched against the source (at the stated premise
+  time, else the row's ``time_start``, else every sample); the rewritten question prints the
+  source premise at the resolved time.
+- ``premise_equals_target``: target time equal to the premise time, or target and premise poses
+  that print identically -> excluded (defect ``premise_equals_answer``).
+- Timestamp search (:func:`timestamp_search`): for each legacy matrix, the source sample whose
+  pose reproduces it best (largest absolute entry difference, ``residual``). A Waymo matrix that
+  the asked sample does not reproduce but another sample does is ``waymo_pose_wrong_timestamp``;
+  one that no sample reproduces is ``value_mismatch``.
+- Comparison rule: entry-wise, half a unit of the last printed place + ``compare_abs_tol``.
+
+Options: :func:`resti_lib.options.builders.pose_options` with rotations drawn about the world up
+(distinct rotations, exact before rounding) and a source-scaled ``trans_sigma`` =
+``max(floor[source], trans_sigma_frac * |p(target) - p(premise)|)``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import values as V
+from ..adjudicate import Rule, same_quantity_agrees, verdict_for
+from ..contract import parse_question
+from ..errors import ContractError, InputError
+from ..geometry import trajectory as G
+from ..geometry.trajectory import PoseTrack
+from .base import AnswerSpec, Outcome
+
+TASK = "Pose Estimation"
+
+#: Defaults of the task parameters (``params/pose.yaml`` overrides them).
+DEFAULTS = {
+    "pose_rule": "nearest",
+    "compare_abs_tol": 0.001,
+    "match_abs_tol": 0.001,
+    "trans_sigma_frac": 0.5,
+    "trans_sigma_floor": {"ScanNet": 0.25, "Waymo": 2.0, "Omni6DPose": 0.05},
+    "omni6d_up": [0.0, 0.0, 1.0],
+    "decimals": 2,
+}
+
+WORLD = {
+    "ScanNet": "ScanNet raw scan coordinate frame",
+    "Waymo": "Waymo world coordinate frame",
+    "Omni6DPose": "OpenCV camera frame at the premise time",
+}
+CHAIN = {
+    "ScanNet": "P(t) = T_raw<-cam(t) (.sens camera_to_world, OpenCV axes)",
+    "Waymo": "P(t) = world_from_vehicle(t) @ extrinsic(camera) @ T_waymo_cam<-cv_cam",
+    "Omni6DPose": "P(t) = T_scene<-cam(t0)^-1 @ T_scene<-cam(t) (stored convention verified, OpenCV axes)",
+}
+AXES = "OpenCV camera axes (+X right, +Y down, +Z forward)"
+
+
+def _p(params: dict, key: str):
+    v = params.get(key)
+    return DEFAULTS[key] if v is None else v
+
+
+def _t(t: float) -> str:
+    """Question-text time: the shortest exact decimal (``0``, ``16``, ``10.5``)."""
+    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
+    return s if s not in ("", "-0") else "0"
+
+
+def _vec(T: np.ndarray) -> np.ndarray:
+    """The 12 printed entries ``tx, ty, tz, r11 .. r33`` of pose(s) ``[..., 4, 4]``."""
+    T = np.asarray(T, float)
+    return np.concatenate([T[..., :3, 3], T[..., :3, :3].reshape(T.shape[:-2] + (9,))], axis=-1)
+
+
+def _as_pose(T: np.ndarray, decimals: int) -> V.Pose:
+    """An unrounded :class:`resti_lib.values.Pose` for comparisons (printed precision ``decimals``)."""
+    T = np.asarray(T, float)
+    return V.Pose(t=tuple(T[:3, 3]), R=tuple(tuple(r) for r in T[:3, :3]), text="", decimals=decimals)
+
+
+def rotation_angle_deg(R0: np.ndarray, R1: np.ndarray) -> float:
+    """Angle of the relative rotation ``R0^T R1`` in degrees."""
+    c = (np.trace(np.asarray(R0).T @ np.asarray(R1)) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+# ------------------------------------------------------------------------------------ operators
+
+
+def time_tolerance(track: PoseTrack) -> float:
+    """Half the median sampling interval of a track (seconds): the nearest-sample window."""
+    return 0.5 * float(np.median(np.diff(track.times))) if len(track) > 1 else G.DEFAULT_TOL
+
+
+def pose_at_time(track: PoseTrack, t: float, rule: str = "nearest") -> tuple[np.ndarray, dict]:
+    """``P(t)`` by ``rule`` within :func:`time_tolerance`; evidence names the sample and its time.
+
+    Raises
+    ------
+    ContractError
+        Time outside the track, no sample within the tolerance, or an invalid pose there.
+    """
+    tol = time_tolerance(track)
+    T, ev = G.pose_at(track, float(t), rule, tol)
+    ev["tol_s"] = tol
+    for key in ("frames", "micros"):
+        if key in track.meta:
+            ev["frame" if key == "frames" else "frame_timestamp_micros"] = [int(track.meta[key][i])
+                                                                           for i in ev["indices"]]
+    return T, ev
+
+
+def timestamp_search(track: PoseTrack, legacy_T: np.ndarray, t_asked: float, *, decimals: int = 2,
+                     abs_tol: float = 0.001, rule: str = "nearest") -> dict:
+    """Which source sample reproduces a printed pose matrix? (the wrong-timestamp diagnosis)
+
+    Every valid sample is compared with the legacy matrix entry-wise; ``residual`` is the largest
+    absolute difference of the 12 printed entries. A sample *reproduces* the matrix when its
+    residual is at most half a unit of the printed place plus ``abs_tol``.
+
+    Returns
+    -------
+    dict
+        ``asked_t``, ``asked_sample_t``, ``asked_residual``, ``best_t``, ``best_index``,
+        ``best_residual``, ``reproduced_at_asked``, ``reproduced_elsewhere``, ``wrong_timestamp``
+        (reproduced by another sample and not by the asked one), ``time_offset_s`` (best - asked
+        sample), ``translation_change_m`` (legacy translation vs the source at the asked time),
+        ``n_reproducing`` and the tolerance used.
+    """
+    legacy_T = np.asarray(legacy_T, float)
+    tol = 0.5 * 10.0 ** -decimals + abs_tol
+    T_ask, ev = pose_at_time(track, t_asked, rule)
+    v = _vec(legacy_T)
+    valid = np.flatnonzero(track.valid)
+    res = np.abs(_vec(track.T[valid]) - v).max(axis=1)
+    k = int(np.argmin(res))
+    best = int(valid[k])
+    r_ask = float(np.abs(_vec(T_ask) - v).max())
+    reproducing = valid[res <= tol + 1e-12]
+    elsewhere = [int(i) for i in reproducing if abs(track.times[i] - ev["times"][0]) > ev["tol_s"]]
+    out = {"asked_t": float(t_asked), "asked_sample_t": float(ev["times"][0]), "asked_residual": r_ask,
+           "best_t": float(track.times[best]), "best_index": best, "best_residual": float(res[k]),
+           "tolerance": tol, "n_reproducing": int(reproducing.size),
+           "reproduced_at_asked": bool(r_ask <= tol + 1e-12), "reproduced_elsewhere": bool(elsewhere),
+           "translation_change_m": float(np.linalg.norm(legacy_T[:3, 3] - T_ask[:3, 3])),
+           "rotation_change_deg": rotation_angle_deg(T_ask[:3, :3], legacy_T[:3, :3])}
+    out["wrong_timestamp"] = bool(not out["reproduced_at_asked"] and out["reproduced_elsewhere"])
+    out["time_offset_s"] = out["best_t"] - out["asked_sample_t"]
+    if "micros" in track.meta:
+        out["best_frame_timestamp_micros"] = int(track.meta["micros"][best])
+    if "frames" in track.meta:
+        out["best_frame"] = int(track.meta["frames"][best])
+    return out
+
+
+def resolve_premise(track: PoseTrack, premise: dict | None, candidates: list[float], *, decimals: int = 2,
+                    abs_tol: float = 0.001, rule: str = "nearest") -> dict:
+    """The premise time: the first candidate time whose source pose reproduces the printed premise,
+    else the best-matching sample of the whole track (when it reproduces it), else the first
+    candidate (``reproduced: False``). Without a printed premise the first candidate is used."""
+    cands = [float(c) for c in dict.fromkeys(candidates)]
+    if premise is None:
+        return {"time": cands[0], "how": "stated", "printed": False}
+    try:
+        P = V.parse(json.dumps(premise))
+    except InputError as e:
+        return {"time": cands[0], "how": "stated", "printed": True, "unreadable": str(e)}
+    tol = 0.5 * 10.0 ** -decimals + abs_tol
+    tried = []
+    for c in cands:
+        try:
+            T, _ = pose_at_time(track, c, rule)
+        except ContractError as e:
+            tried.append({"t": c, "error": str(e)})
+            continue
+        r = float(np.abs(_vec(T) - P.vector()).max())
+        tried.append({"t": c, "residual": r})
+        if r <= tol + 1e-12:
+            return {"time": c, "how": "stated" if c == cands[0] else "time_start", "residual": r,
+                    "reproduced": True, "tried": tried}
+    s = timestamp_search(track, P.matrix, cands[0], decimals=decimals, abs_tol=abs_tol, rule=rule) \
+        if np.isfinite(cands[0]) else None
+    if s is not None and s["best_residual"] <= tol + 1e-12:
+        return {"time": s["best_t"], "how": "search", "residual": s["best_residual"], "reproduced": True,
+                "tried": tried}
+    return {"time": cands[0], "how": "stated", "reproduced": False, "tried": tried,
+            "best_search_residual": None if s is None else s["best_residual"]}
+
+
+# ------------------------------------------------------------------------------------- the task
+
+
+def question_text(source: str, t0: float, t1: float, premise_text: str | None) -> str:
+    """The rewritten question: premise and target times, world frame, axes, matrix direction, unit."""
+    if source == "Omni6DPose":
+        return (f"Taking the camera pose at t={_t(t0)} s as the identity and expressing the result in the OpenCV "
+                f"camera frame of that instant (+X right, +Y down, +Z forward; translation in meters), what is "
+                f"the camera pose at t={_t(t1)} s, as the camera-to-reference matrix (mapping camera "
+                f"coordinates at t={_t(t1)} s into that frame)?")
+    extra = " (vehicle pose composed with the camera extrinsic)" if source == "Waymo" else ""
+    return (f"Given the camera pose at t={_t(t0)} s in the {WORLD[source]}: {premise_text}, what is the camera "
+            f"pose in the same coordinate frame at t={_t(t1)} s? Poses are camera-to-world matrices{extra} "
+            f"with OpenCV camera axes (+X right, +Y down, +Z forward); translation in meters.")
+
+
+def trans_sigma(source: str, displacement_m: float, params: dict) -> float:
+    """Distractor translation spread: ``max(floor[source], trans_sigma_frac * displacement)``."""
+    floors = {**DEFAULTS["trans_sigma_floor"], **(params.get("trans_sigma_floor") or {})}
+    return float(max(float(floors[source]), float(_p(params, "trans_sigma_frac")) * float(displacement_m)))
+
+
+def _new(r: dict) -> Outcome:
+    return Outcome(row=int(r["row"]), key=r["Legacy Row Key"], task=TASK, source=str(r["Source"]),
+                   video=str(r["Video"]), legacy_id=r.get("ID"), verdict="retained",
+                   legacy_detail=str(r.get("Answer Detail")))
+
+
+def _track(ctx, vs, params: dict) -> tuple[PoseTrack, tuple, list[str]]:
+    """The camera track of a video, the world up in its frame and the files read."""
+    if vs.source == "ScanNet":
+        sc = ctx.scannet(vs.sequence)
+        tr = sc.camera_track()
+        return tr, (0.0, 0.0, 1.0), [tr.source, str(sc.meta_path)]
+    if vs.source == "Waymo":
+        seg = ctx.waymo(vs.sequence)
+        if vs.camera is None:
+            raise InputError("Waymo video without a camera number", field="Video")
+        tr = seg.camera_track(vs.camera)
+        return tr, (0.0, 0.0, 1.0), [str(seg.path("vehicle_pose")), str(seg.path("camera_calibration"))]
+    rp = ctx.rope(vs.sequence)
+    tr = rp.camera_track(rebase=True)
+    up = tuple(float(x) for x in rp.world_up_in_track_frame(np.asarray(_p(params, "omni6d_up"), float)))
+    return tr, up, [str(rp.dir), str(rp.obj_meta_path)]
+
+
+def audit_row(r: dict, ctx, params: dict) -> Outcome:
+    """One legacy row -> Outcome (see :func:`audit`)."""
+    o = _new(r)
+    dec = int(_p(params, "decimals"))
+    rule = str(_p(params, "pose_rule"))
+    mtol = float(_p(params, "match_abs_tol"))
+    c = parse_question(r, video_map=ctx.video_map)
+    vs = ctx.locate(r["Video"])
+    src = vs.source
+    track, up, files = _track(ctx, vs, params)
+    o.source_files = files
+    o.transform_chain = CHAIN[src]
+    if "time" in c.missing:
+        o.defects.append("pose_time_omitted")
+    o.evidence["legacy_missing"] = list(c.missing)
+    t1 = float(c.times[0]) if c.times else float(r["time_end"])
+    stated_t0 = float(c.params.get("premise_time", r.get("time_start") or 0.0))
+    cands = [stated_t0, float(r.get("time_start") or 0.0)]
+    prem = resolve_premise(track, c.params.get("premise_pose"), cands, decimals=dec, abs_tol=mtol, rule=rule)
+    t0 = float(prem["time"])
+    o.evidence["premise"] = prem
+    try:
+        T0, e0 = pose_at_time(track, t0, rule)
+        T1, e1 = pose_at_time(track, t1, rule)
+    except ContractError as e:
+        return o.exclude("invalid_pose_at_time", error=str(e), premise_time=t0, target_time=t1)
+    o.frames = {"premise": e0, "target": e1}
+    compact = src == "Waymo"
+    disp = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
+    rot = rotation_angle_deg(T0[:3, :3], T1[:3, :3])
+    same_time = abs(e1["times"][0] - e0["times"][0]) <= e0["tol_s"]
+    same_print = V.format_pose(T0, dec, compact=compact) == V.format_pose(T1, dec, compact=compact)
+    c.entity = {"kind": "camera", **({"camera": int(vs.camera)} if vs.camera is not None else {})}
+    c.times = [t1]
+    c.params = {k: v for k, v in c.params.items() if k != "premise_pose"}
+    c.params.update({"premise_time": t0, "matrix": "camera-to-world", "axes": AXES})
+    c.frame = WORLD[src]
+    c.unit = "m"
+    o.contract = c.to_dict()
+    if same_time or same_print:
+        o.defects.append("premise_equals_answer")
+        return o.exclude("premise_equals_target", premise_time=t0, target_time=t1, displacement_m=disp,
+                         rotation_deg=rot, same_time=bool(same_time), printed_identical=bool(same_print))
+    comparable, agrees = True, None
+    try:
+        legacy = V.parse(r.get("Answer Detail"), row=o.row, field="Answer Detail")
+        if not isinstance(legacy, V.Pose):
+            raise InputError("Answer Detail is not a pose")
+    except InputError as e:
+        legacy, comparable = None, False
+        o.evidence["legacy_unreadable"] = str(e)
+    if legacy is not None:
+        rule_c = Rule(abs_tol=float(_p(params, "compare_abs_tol")))
+        agrees = same_quantity_agrees(legacy, _as_pose(T1, legacy.decimals), rule_c)
+        search = timestamp_search(track, legacy.matrix, t1, decimals=legacy.decimals, abs_tol=mtol, rule=rule)
+        o.evidence["comparison"] = {"rule": rule_c.describe(), "agrees": bool(agrees),
+                                    "max_abs_entry_diff": float(np.abs(legacy.vector() - _vec(T1)).max())}
+        o.evidence["timestamp_search"] = search
+        if not agrees:
+            if src == "Waymo" and search["wrong_timestamp"]:
+                o.defects.append("waymo_pose_wrong_timestamp")
+            else:
+                o.defects.append("value_mismatch")
+    o.verdict = verdict_for(comparable, agrees)
+    o.question = question_text(src, t0, t1, V.format_pose(T0, dec, compact=compact))
+    o.prompt = ""
+    o.time_start, o.time_end = min(t0, t1), max(t0, t1)
+    sig = trans_sigma(src, disp, params)
+    o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot, "trans_sigma_m": sig}
+    o.answer = AnswerSpec(kind="pose", value=T1, decimals=dec,
+                          options={"trans_sigma": sig, "up": list(up), "compact": compact})
+    return o
+
+
+def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
+    """Task-module entry point: one :class:`Outcome` per legacy Pose Estimation row."""
+    return [audit_row(r, ctx, params) for r in rows.to_dict("records")]
+
+
+# ---------------------------------------------------------------------------------- reporting
+
+
+def diagnosis_table(outcomes: list[Outcome], source: str | None = "Waymo") -> pd.DataFrame:
+    """The timestamp diagnosis per row (accepted rows with a readable legacy matrix)."""
+    recs = []
+    for o in outcomes:
+        s = o.evidence.get("timestamp_search")
+        if s is None or (source is not None and o.source != source):
+            continue
+        recs.append({"row": o.row, "source": o.source, "video": o.video, "verdict": o.verdict,
+                     "asked_t": s["asked_t"], "best_t": s["best_t"], "time_offset_s": s["time_offset_s"],
+                     "asked_residual": s["asked_residual"], "best_residual": s["best_residual"],
+                     "wrong_timestamp": "waymo_pose_wrong_timestamp" in o.defects,
+                     "translation_change_m": s["translation_change_m"],
+                     "rotation_change_deg": s["rotation_change_deg"]})
+    return pd.DataFrame(recs)
+
+
+def wrong_timestamp_summary(table: pd.DataFrame) -> dict:
+    """Counts and translation change (median, max) of the wrong-timestamp rows (the report's
+    "90 of 121, 0.77 m, 31.6 m" line)."""
+    if table.empty:
+        return {"n_rows": 0, "n_wrong": 0, "median_translation_change_m": None, "max_translation_change_m": None}
+    w = table[table["wrong_timestamp"]]
+    return {"n_rows": len(table), "n_wrong": len(w),
+            "median_translation_change_m": float(w["translation_change_m"].median()) if len(w) else None,
+            "max_translation_change_m": float(w["translation_change_m"].max()) if len(w) else None}
+
+
+def plot_translation_change(table: pd.DataFrame, path: str | Path, *, title: str = "") -> Path:
+    """Histogram (log-spaced bins) of the translation change of the wrong-timestamp rows."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    w = table[table["wrong_timestamp"]] if len(table) else table
+    fig, ax = plt.subplots(figsize=(5.0, 3.0))
+    if len(w):
+        x = np.maximum(w["translation_change_m"].to_numpy(float), 1e-3)
+        bins = np.logspace(np.log10(x.min()) - 0.05, np.log10(x.max()) + 0.05, 16)
+        ax.hist(x, bins=bins, color="#2c7fb8", edgecolor="white")
+        ax.set_xscale("log")
+        med = float(np.median(x))
+        ax.axvline(med, color="k", ls="--", lw=0.8)
+        ax.text(med, ax.get_ylim()[1] * 0.92, f" median {med:.2f} m", fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no wrong-timestamp rows", ha="center", transform=ax.transAxes)
+    ax.set_xlabel("translation change: legacy matrix vs source pose at the asked time [m]")
+    ax.set_ylabel("rows")
+    s = wrong_timestamp_summary(table)
+    ax.set_title(title or f"Waymo pose rows from a wrong timestamp: {s['n_wrong']} of {s['n_rows']}",
+                 fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
+    return path
+
+
+__all__ = [
+    "DEFAULTS",
+    "TASK",
+    "audit",
+    "audit_row",
+    "diagnosis_table",
+    "plot_translation_change",
+    "pose_at_time",
+    "question_text",
+    "resolve_premise",
+    "rotation_angle_deg",
+    "time_tolerance",
+    "timestamp_search",
+    "trans_sigma",
+    "wrong_timestamp_summary",
+]

@@ -1,0 +1,122 @@
+"""Pose Estimation: operators on hand-computed tracks, and acceptance on the mini-world."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from resti_lib import values as V
+from resti_lib.geometry.frames import make_T, yaw_matrix
+from resti_lib.geometry.trajectory import PoseTrack
+from resti_lib.tasks import pose as P
+from tests.task_checks import check_attacks, check_defects, check_exclusions, check_values, run_on_miniworld
+
+TASK = P.TASK
+
+
+def _track(n: int = 101, dt: float = 0.1) -> PoseTrack:
+    """Moves +1 m/s along world x and yaws 3 deg/s: P(t) = [R_z(3t deg) | (t, 2, 1)]."""
+    t = np.arange(n) * dt
+    T = make_T(yaw_matrix(np.radians(3.0 * t)), np.stack([t, np.full(n, 2.0), np.ones(n)], axis=1))
+    return PoseTrack(t, T, name="test camera", meta={"frames": np.arange(n)})
+
+
+def _printed(T: np.ndarray) -> np.ndarray:
+    return V.parse(V.format_pose(T)).matrix
+
+
+def test_pose_at_time_nearest_sample():
+    tr = _track()
+    T, ev = P.pose_at_time(tr, 5.02)
+    assert ev["indices"] == [50] and ev["frame"] == [50]
+    assert np.allclose(T[:3, 3], [5.0, 2.0, 1.0])
+    assert P.time_tolerance(tr) == pytest.approx(0.05)
+
+
+def test_timestamp_search_finds_the_wrong_sample():
+    tr = _track()
+    legacy = _printed(tr.T[53])  # the matrix of t = 5.3 s, asked at t = 5.0 s
+    s = P.timestamp_search(tr, legacy, 5.0)
+    assert s["best_t"] == pytest.approx(5.3)
+    assert s["wrong_timestamp"] and not s["reproduced_at_asked"]
+    assert s["time_offset_s"] == pytest.approx(0.3)
+    assert s["translation_change_m"] == pytest.approx(0.3, abs=0.01)  # printed to 2 decimals
+    assert s["best_residual"] <= 0.005 + 1e-12
+    ok = P.timestamp_search(tr, _printed(tr.T[50]), 5.0)
+    assert ok["reproduced_at_asked"] and not ok["wrong_timestamp"]
+    far = _printed(tr.T[50]).copy()
+    far[0, 3] += 100.0  # no sample reproduces it: a value mismatch, not a wrong timestamp
+    s2 = P.timestamp_search(tr, far, 5.0)
+    assert not s2["wrong_timestamp"] and s2["best_residual"] > 1.0
+
+
+def test_resolve_premise_from_time_start_or_search():
+    tr = _track()
+    premise = json.loads(V.format_pose(tr.T[20]))
+    r = P.resolve_premise(tr, premise, [0.0, 2.0])
+    assert r["time"] == 2.0 and r["how"] == "time_start" and r["reproduced"]
+    r2 = P.resolve_premise(tr, premise, [7.0])
+    assert r2["time"] == pytest.approx(2.0) and r2["how"] == "search"
+    assert P.resolve_premise(tr, None, [0.0])["time"] == 0.0
+
+
+def test_trans_sigma_and_question():
+    assert P.trans_sigma("Waymo", 1.0, {}) == 2.0  # floor
+    assert P.trans_sigma("Waymo", 30.0, {}) == 15.0  # half the displacement
+    assert P.trans_sigma("ScanNet", 0.1, {"trans_sigma_floor": {"ScanNet": 0.4}}) == 0.4
+    q = P.question_text("Waymo", 3.0, 12.0, "{...}")
+    for part in ("t=3 s", "t=12 s", "Waymo world coordinate frame", "camera-to-world", "OpenCV", "meters"):
+        assert part in q
+    q2 = P.question_text("Omni6DPose", 0.0, 7.5, None)
+    assert "t=0 s as the identity" in q2 and "t=7.5 s" in q2
+    assert P.rotation_angle_deg(np.eye(3), yaw_matrix(np.radians(30.0))) == pytest.approx(30.0)
+
+
+# ------------------------------------------------------------------------------- mini-world
+
+
+@pytest.fixture(scope="module")
+def pose_run(miniworld, tmp_path_factory):
+    return run_on_miniworld(TASK, miniworld, tmp_path_factory.mktemp("pose_out"))
+
+
+def test_defects_match_manifest(pose_run):
+    check_defects(pose_run)
+
+
+def test_values_equal_truth(pose_run):
+    check_values(pose_run)
+
+
+def test_exclusions_have_reasons_and_evidence(pose_run):
+    check_exclusions(pose_run)
+    ex = [o for o in pose_run.run.outcomes if o.verdict == "excluded"]
+    assert ex and all(o.reasons == ["premise_equals_target"] for o in ex)
+
+
+def test_no_significant_attack(pose_run):
+    check_attacks(pose_run)
+
+
+def test_wrong_timestamp_diagnosis(pose_run):
+    tab = P.diagnosis_table(pose_run.run.outcomes)
+    summ = P.wrong_timestamp_summary(tab)
+    truth = sum("waymo_pose_wrong_timestamp" in m["defects"] for m in pose_run.manifest)
+    assert summ["n_wrong"] == truth > 0
+    assert summ["median_translation_change_m"] > 0.05
+    wrong = tab[tab["wrong_timestamp"]]
+    assert (wrong["best_residual"] <= 0.006).all() and (wrong["asked_residual"] > 0.006).all()
+
+
+def test_rebuilt_options_have_distinct_valid_rotations(pose_run):
+    for r in pose_run.run.result.accepted:
+        vals = [V.parse(s) for s in r["Candidates"].values()]
+        Rs = [np.array(v.R) for v in vals]
+        for i in range(5):
+            assert np.abs(Rs[i] @ Rs[i].T - np.eye(3)).max() < 0.03
+            for j in range(i + 1, 5):
+                assert not np.allclose(Rs[i], Rs[j]), r["ReSTI ID"]
+        q = r["Question"]
+        assert "t=" in q and ("camera-to-world" in q or "camera-to-reference" in q)

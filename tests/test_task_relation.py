@@ -1,0 +1,104 @@
+"""Spatial Relation: mounted-camera and object-pair operators on hand-computed cases, and
+acceptance on the mini-world (the label prior is reported, not required to be at chance)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from resti_lib.geometry.frames import make_T, yaw_matrix
+from resti_lib.rng import row_rng
+from resti_lib.tasks import relation as RE
+from resti_lib.tasks.base import AnswerSpec, build_options
+from tests.task_checks import check_attacks, check_defects, check_exclusions, check_values, run_on_miniworld
+
+TASK = RE.TASK
+
+
+@pytest.mark.parametrize("yaw,label", [(0.0, "Front"), (44.0, "Front-Left"), (-47.0, "Front-Right"),
+                                        (91.0, "Left"), (-89.5, "Right"), (180.0, "Back"), (22.0, None),
+                                        (-66.0, None)])
+def test_mount_relation_from_extrinsic_yaw(yaw, label):
+    E = make_T(yaw_matrix(math.radians(yaw)), [1.5, 0.0, 2.0])
+    got, ev = RE.mount_relation(E, margin_deg=5.0)
+    assert got == label
+    assert RE._circ(ev["yaw_deg"], yaw) < 1e-9
+    assert ev["edge_margin_deg"] == pytest.approx(22.5 - min(abs(yaw - c) for c in (0, 45, -45, 90, -90, 180)),
+                                                  abs=1e-9)
+
+
+def test_relative_position_cases():
+    up = np.array([0.0, -1.0, 0.0])  # camera looking horizontally: scene up = -Y in OpenCV axes
+    I, lwh = np.eye(3), np.array([0.2, 0.2, 0.1])  # B's box: local z = its height
+    Rb = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # box z -> camera -Y (up)
+    b = np.array([0.0, 0.0, 1.0])
+    assert RE.relative_position(b + [0.30, 0, 0.1], b, I, lwh, up)[0] == "Right"
+    assert RE.relative_position(b + [-0.30, 0, 0.1], b, I, lwh, up)[0] == "Left"
+    assert RE.relative_position(b + [0.05, 0, 0.4], b, I, lwh, up)[0] == "Farther"
+    assert RE.relative_position(b + [0.05, 0, -0.4], b, I, lwh, up)[0] == "Closer"
+    lab, ev = RE.relative_position(b + [0.2, 0, 0.2], b, I, lwh, up)
+    assert lab is None and ev["dominance"] == pytest.approx(1.0) and ev["margin_m"] == pytest.approx(-0.1)
+    lab, ev = RE.relative_position(b + [0.01, -0.09, 0.0], b, Rb, lwh, up)  # 0.09 above centre, top at 0.05
+    assert lab == "Directly above" and ev["height_above_top_m"] == pytest.approx(0.04)
+    beside = RE.relative_position(b + [0.3, -0.09, 0.0], b, Rb, lwh, up)[0]
+    assert beside == "Right"  # higher but not over the footprint
+
+
+def test_referents():
+    inst = {"a": {"class_name": "teddy_bear"}, "b": {"class_name": "mug"}, "c": {"class_name": "mug"},
+            "d": {"class_name": "remote_control"}}
+    assert RE.match_referent("small brown teddy bear wearing a blue shirt", inst)["oids"] == ["a"]
+    assert RE.match_referent("black remote control with red buttons", inst)["status"] == "ok"
+    assert RE.match_referent("white ceramic mug with a red logo", inst)["status"] == "ambiguous_instance"
+    assert RE.match_referent("the two mugs", inst)["status"] == "grouped_referent"
+    assert RE.match_referent("wooden toy train", inst)["status"] == "no_source_instance"
+
+
+def test_label_options_are_the_fixed_five():
+    for src, labels in RE.LABELS.items():
+        opts = build_options(AnswerSpec("label", labels[2], labels=labels), rng=row_rng(0, src), target_rank=None,
+                             params={})
+        assert sorted(opts.strings) == sorted(labels) and opts.strings[opts.answer_index] == labels[2]
+
+
+def test_question_wording():
+    q = RE.question_text("Omni6DPose", a="red suitcase", b="teddy bear", t=0.0)
+    assert q.startswith("Viewed from the camera at t=0 s: relative to the teddy bear, is the red suitcase to the "
+                        "left, to the right, closer to the camera, farther from the camera, or directly above?")
+    assert "mounted on the moving car" in RE.question_text("Waymo")
+
+
+# ------------------------------------------------------------------------------- mini-world
+
+
+@pytest.fixture(scope="module")
+def rel_run(miniworld, tmp_path_factory):
+    return run_on_miniworld(TASK, miniworld, tmp_path_factory.mktemp("relation_out"))
+
+
+def test_defects_match_manifest(rel_run):
+    check_defects(rel_run)
+
+
+def test_values_equal_truth(rel_run):
+    check_values(rel_run)
+
+
+def test_exclusions_have_reasons_and_evidence(rel_run):
+    check_exclusions(rel_run)
+    for e in rel_run.run.result.excluded:
+        if "no_dominant_relation" in e["reason_codes"]:
+            ev = e["verification_evidence"]
+            assert {"dx", "dz", "dominance", "required_ratio"} <= set(ev) and ev["dominance"] < 1.5
+
+
+def test_no_significant_attack_except_label_prior(rel_run):
+    check_attacks(rel_run, allowed=("label_prior",))
+
+
+def test_mount_labels_verified_by_calibration(rel_run):
+    tab = RE.diagnosis_table(rel_run.run.outcomes)
+    w = tab[tab["source"] == "Waymo"]
+    assert len(w) and w["name_agrees"].all() and (w["edge_margin_deg"] > 15).all()
