@@ -69,12 +69,32 @@ def test_two_generations_are_byte_identical(world, tmp_path):
     assert _hashes(world[0]) == _hashes(tmp_path)
 
 
-def test_other_seed_changes_the_world(tmp_path, world):
-    synth_main([str(tmp_path), "--seed", "1"])  # the CLI entry point
-    a = (world[0] / "legacy" / "qa.parquet").read_bytes()
-    b = (tmp_path / "legacy" / "qa.parquet").read_bytes()
-    assert a != b
-    assert (tmp_path / "manifest.jsonl").exists()
+def test_cli_parses_arguments(monkeypatch, tmp_path, capsys):
+    import resti_lib.synth.__main__ as cli
+
+    seen = {}
+
+    def fake_generate(out_dir, **kw):
+        seen.update(kw, out_dir=out_dir)
+        return {
+            "out_dir": str(out_dir),
+            "seed": kw["seed"],
+            "scale": kw["scale"],
+            "files": 0,
+            "bytes": 0,
+            "seconds": 0.0,
+            "counts": {"rows": 0},
+        }
+
+    monkeypatch.setattr(cli, "generate", fake_generate)
+    assert synth_main([str(tmp_path), "--seed", "7", "--scale", "2"]) == 0
+    assert seen == {
+        "out_dir": str(tmp_path),
+        "seed": 7,
+        "scale": 2,
+        "omni6d_camera_convention": "world_from_camera",
+    }
+    assert json.loads(capsys.readouterr().out)["seed"] == 7
 
 
 def test_default_budget(world):
@@ -210,7 +230,7 @@ def _read_ply(path: Path) -> np.ndarray:
     return np.stack([verts["x"], verts["y"], verts["z"]], axis=1).astype(np.float64)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _instances(d: Path) -> tuple[np.ndarray, dict[int, dict]]:
     """Annotation-frame AABB of every segGroup, computed by hand from ply + segs + aggregation."""
     A = np.array([float(x) for x in _read_txt(d / f"{d.name}.txt")["axisAlignment"].split()]).reshape(4, 4)
@@ -283,7 +303,7 @@ _WAYMO_COLUMNS = {
 }
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _waymo_segment(out: Path, seg: str) -> dict:
     vp = pd.read_parquet(out / "waymo" / "vehicle_pose" / f"{seg}.parquet")
     cal = pd.read_parquet(out / "waymo" / "camera_calibration" / f"{seg}.parquet")
@@ -675,9 +695,12 @@ def test_scale_mirrors_the_legacy_structure(tmp_path, resti_v5_dir):
     assert 20 <= sum("duplicate_options_exact" in m["defects"] for m in man) <= 45
 
 
-def test_scale_fallback_without_release(tmp_path):
+def test_scale_fallback_without_release(tmp_path, world):
     """Without resti_v5 the structure comes from the per-task counts of the format notes."""
     summary = generate(tmp_path, seed=3, scale=1, resti_v5_dir=tmp_path / "absent")
+    scene = sorted((tmp_path / "scannet" / "scans").iterdir())[0].name
+    sens = f"scannet/scans/{scene}/{scene}.sens"
+    assert (tmp_path / sens).read_bytes() != (world[0] / sens).read_bytes()  # another seed, another world
     c = summary["counts"]
     assert summary["row_structure"].startswith("per-task counts") and c["rows"] == 2064
     per_task = Counter()

@@ -10,6 +10,7 @@ from . import generate
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns the exit code."""
     ap = argparse.ArgumentParser(
         prog="python -m resti_lib.synth",
         description="Write the mini-world (sources + legacy benchmark + manifest).",

@@ -144,6 +144,7 @@ class Slot:
 
     @property
     def key(self) -> str:
+        """Stable text key of the slot (seeds its RNG)."""
         return f"{self.source}|{self.task}|{self.video}|{self.id}|{self.occurrence}"
 
 
@@ -351,6 +352,7 @@ class Builder:
         return self._cache[key]
 
     def seq(self, slot: Slot):
+        """The source sequence of a slot."""
         if slot.source == "ScanNet":
             return self.world.scannet[slot.sequence]
         if slot.source == "Waymo":
@@ -358,6 +360,7 @@ class Builder:
         return self.world.omni[slot.sequence]
 
     def build(self, slot: Slot) -> Draft:
+        """The draft of one slot; a variant the sequence cannot host falls back to a normal row."""
         fn: Callable = {
             "3D Video Grounding": self.grounding,
             "Ego-Centric Orientation": self.orientation,
@@ -379,6 +382,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- grounding
     def grounding(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """3D Video Grounding: legacy box (ScanNet centre without alignment) and the true oriented box."""
         s = self.seq(slot)
         scen = SCENE_OF_SOURCE[slot.source]
         defects: list[str] = []
@@ -480,6 +484,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- orientation
     def orientation(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Ego-Centric Orientation: legacy X-Z endpoint angle vs gravity-horizontal heading change."""
         s = self.seq(slot)
         if slot.source == "ScanNet":
             f1 = s.last_valid
@@ -525,6 +530,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- pose
     def pose(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Pose Estimation: ScanNet premise/target poses, Waymo wrong timestamps, ROPE relative pose."""
         s = self.seq(slot)
         defects: list[str] = []
         reasons: list[str] = []
@@ -619,6 +625,7 @@ class Builder:
     def _interval(
         self, slot: Slot, s, rng: np.random.Generator, lo: int = 2, hi: int = 12
     ) -> tuple[int, int]:
+        """Integer-second interval on the sequence timeline (valid poses for ScanNet)."""
         if slot.source == "ScanNet":
             return _sn_interval(s, rng, lo, hi)
         end = int(math.floor(s.video_end))
@@ -627,6 +634,7 @@ class Builder:
         return t0, t1
 
     def _frames(self, slot: Slot, s, t0: float, t1: float) -> tuple[int, int]:
+        """Source frames of two timeline times (nearest frame)."""
         return s.frame_of(t0), s.frame_of(t1)
 
     def _camera_motion(self, slot: Slot, s, k0: int, k1: int) -> tuple[float, float]:
@@ -637,6 +645,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- displacement
     def displacement(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Displacement & Path Length: camera or object subject, zero-length and ambiguous subjects."""
         s = self.seq(slot)
         scen = SCENE_OF_SOURCE[slot.source]
         defects = ["unit_tag_missing"]
@@ -713,6 +722,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- speed
     def speed(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Speed & Acceleration: 'average speed' = displacement / time; object acceleration (Waymo)."""
         s = self.seq(slot)
         scen = SCENE_OF_SOURCE[slot.source]
         defects = ["unit_tag_missing"]
@@ -778,6 +788,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- trajectory
     def trajectory(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Trajectory Description (Waymo): legacy distances on a 10 m grid."""
         s = self.seq(slot)
         segs = s.trajectory_segments(slot.camera)
         legacy = []
@@ -818,6 +829,7 @@ class Builder:
 
     # ---------------------------------------------------------------------- dimensional
     def dimensional(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Dimensional Measurement: dimensions, camera distance, box distance and referent exclusions."""
         src = slot.source
         s = self.seq(slot)
         scen = SCENE_OF_SOURCE[src]
@@ -899,7 +911,7 @@ class Builder:
             reasons.append("not_visible_at_frame")
             evidence = {"all_corners_behind_camera": True, "frame": f}
         else:
-            value, desc, entity, t, t_end, kind = self._dim_normal(slot, s, rng, kind, comp)
+            value, desc, entity, t, t_end, kind, comp = self._dim_normal(slot, s, rng, kind, comp)
             legacy = value
             if v == "mismatch":
                 legacy = _perturb(rng, value * scale, _FLOOR[(scen, unit)]) / scale
@@ -944,33 +956,32 @@ class Builder:
         )
 
     def _dim_normal(self, slot: Slot, s, rng: np.random.Generator, kind: str, comp: str):
-        comps = ("length", "width", "height")
-        ci = comps.index(comp)
+        """A normal Dimensional row: (value, description, entity, t, t_end, kind, component).
+
+        Length and width are asked only of objects whose box-local x edge is clearly the longer
+        horizontal edge, so "length = box x" and "length = longer side" give the same answer.
+        """
+
+        def fits(size) -> bool:
+            return kind != "dimension" or comp == "height" or size[0] >= 1.05 * size[1]
+
         if slot.source == "ScanNet":
             if kind == "min_distance":
                 uniq = _sn_unique(s)
                 a, b = (uniq[i] for i in rng.choice(len(uniq), size=2, replace=False))
                 f = _sn_visible_frame(s, a, rng)
                 desc = f"{_strip_article(a.description)} and the {_strip_article(b.description)}"
-                return (
-                    s.box_distance(a, b),
-                    desc,
-                    {"kind": "object_pair", "ids": [a.object_id, b.object_id], "labels": [a.label, b.label]},
-                    f / s.fps,
-                    None,
-                    kind,
-                )
-            inst = _choose(rng, _sn_unique(s))
+                ent = {"kind": "object_pair", "ids": [a.object_id, b.object_id], "labels": [a.label, b.label]}
+                return s.box_distance(a, b), desc, ent, f / s.fps, None, kind, comp
+            pool = [i for i in _sn_unique(s) if fits(i.size)]
+            if not pool:
+                comp, pool = "height", _sn_unique(s)
+            inst = _choose(rng, pool)
             f = _sn_visible_frame(s, inst, rng)
+            ci = ("length", "width", "height").index(comp)
             value = float(inst.size[ci]) if kind == "dimension" else s.distance_to_camera(inst, f)
-            return (
-                value,
-                inst.description,
-                {"kind": "object", "id": inst.object_id, "label": inst.label},
-                f / s.fps,
-                None,
-                kind,
-            )
+            ent = {"kind": "object", "id": inst.object_id, "label": inst.label}
+            return value, inst.description, ent, f / s.fps, None, kind, comp
         if slot.source == "Waymo":
             vis = s.visible(slot.camera)
             opts = [(i, int(k)) for i in range(len(s.objects)) for k in np.flatnonzero(vis[i])]
@@ -978,31 +989,41 @@ class Builder:
                 raise NoCandidate("nothing visible in this camera")
             i, k = _choose(rng, opts)
             o = s.objects[i]
+            if not fits(o.size):
+                comp = "height"
+            ci = ("length", "width", "height").index(comp)
             ent = {"kind": "object", "id": o.oid, "label": o.kind, "type": o.type}
             if kind == "dimension":
                 ks = np.flatnonzero(vis[i])
                 run = ks[(ks >= k) & (ks <= k + 40)]
-                return (
-                    float(o.size[ci]),
-                    o.description,
-                    ent,
-                    round(float(s.t[k]), 1),
-                    round(float(s.t[run[-1]]), 1),
-                    kind,
-                )
-            return s.distance_to_camera(o, k, slot.camera), o.description, ent, float(s.t[k]), None, kind
+                t0, t1 = round(float(s.t[k]), 1), round(float(s.t[run[-1]]), 1)
+                return float(o.size[ci]), o.description, ent, t0, t1, kind, comp
+            return (
+                s.distance_to_camera(o, k, slot.camera),
+                o.description,
+                ent,
+                float(s.t[k]),
+                None,
+                kind,
+                comp,
+            )
         objs = [o for o in s.objects if "group" not in OMNI_CLASSES[o.class_name]]
-        o = _choose(rng, objs)
+        pool = [o for o in objs if fits(o.side)]
+        if not pool:
+            comp, pool = "height", objs
+        o = _choose(rng, pool)
         idx = s.objects.index(o)
         fr = np.arange(0, s.n_frames, 3)
         k = int(_choose(rng, list(fr[s.visible()[idx, fr]])))
+        ci = ("length", "width", "height").index(comp)
         ent = {"kind": "object", "id": o.oid, "label": o.class_name}
         if kind == "dimension":
-            return float(o.side[ci]), o.description, ent, 0.0, None, kind
-        return s.distance_to_camera(o, k), o.description, ent, k / s.fps, None, kind
+            return float(o.side[ci]), o.description, ent, 0.0, None, kind, comp
+        return s.distance_to_camera(o, k), o.description, ent, k / s.fps, None, kind, comp
 
     # ---------------------------------------------------------------------- spatial relation
     def relation(self, slot: Slot, rng: np.random.Generator) -> Draft:
+        """Spatial Relation: Waymo camera mount; ROPE object pairs at t = 0 (or a tied pair)."""
         s = self.seq(slot)
         reasons: list[str] = []
         defects: list[str] = []

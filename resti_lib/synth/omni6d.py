@@ -78,6 +78,8 @@ DEFAULT_SCENES = [("000900", 20.0, True), ("000901", 18.0, False), ("000902", 22
 
 @dataclass
 class RopeObject:
+    """One static ROPE object: class, scale, object-space dimensions and world pose."""
+
     mask_id: int
     oid: str
     class_name: str
@@ -116,19 +118,24 @@ class RopeScene:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return int(self.cam_world.shape[0])
 
     @property
     def video_end(self) -> float:
+        """Time of the last frame, ``(N - 1) / fps``."""
         return (self.n_frames - 1) / self.fps
 
     def frame_of(self, t: float) -> int:
+        """Frame index of timeline time ``t``."""
         return int(round(t * self.fps))
 
     def obj(self, mask_id: int) -> RopeObject:
+        """Object by mask id."""
         return next(o for o in self.objects if o.mask_id == mask_id)
 
     def obj_in_cam(self, o: RopeObject, k: int) -> np.ndarray:
+        """``T_cam<-object`` at frame ``k``."""
         return inv_T(self.cam_world[k]) @ o.T_world
 
     def visible(self) -> np.ndarray:
@@ -144,6 +151,7 @@ class RopeScene:
 
     # ------------------------------------------------------------------ truth (own numpy)
     def box_in_camera(self, o: RopeObject, k: int) -> dict:
+        """Oriented object box in the OpenCV camera frame at frame ``k``."""
         T = self.obj_in_cam(o, k)
         R = T[:3, :3]
         return {
@@ -163,13 +171,16 @@ class RopeScene:
         return inv_T(self.cam_world[0]) @ self.cam_world[k]
 
     def displacement(self, k0: int, k1: int) -> float:
+        """Camera displacement between two frames (m)."""
         return float(np.linalg.norm(self.cam_world[k1, :3, 3] - self.cam_world[k0, :3, 3]))
 
     def path_length(self, k0: int, k1: int) -> float:
+        """Camera path length summed over the frames in [k0, k1] (m)."""
         p = self.cam_world[k0 : k1 + 1, :3, 3]
         return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
     def distance_to_camera(self, o: RopeObject, k: int) -> float:
+        """Distance from the camera centre to the object box at frame ``k`` (m)."""
         return point_box_distance(self.cam_world[k, :3, 3], o.T_world[:3, 3], o.side, o.T_world[:3, :3])
 
     def relation(self, a: int, b: int, k: int = 0) -> tuple[str | None, dict]:
@@ -193,6 +204,7 @@ class RopeScene:
         return None, ev
 
     def describe(self, convention: str) -> dict:
+        """Ground truth for world.json."""
         return {
             "scene": self.name,
             "n_frames": self.n_frames,
@@ -437,6 +449,7 @@ def write_object_meta(scenes: list[RopeScene], root: Path) -> None:
 
 
 def build_default(seed: int) -> list[RopeScene]:
+    """The default ROPE scenes (six-digit ids from 000900)."""
     return [
         build_scene(name, dur, stacked, stable_seed(seed, f"omni6d|{name}"))
         for name, dur, stacked in DEFAULT_SCENES

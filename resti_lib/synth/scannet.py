@@ -158,10 +158,12 @@ class Instance:
 
     @property
     def center(self) -> np.ndarray:
+        """Box centre (ann frame)."""
         return (self.bmin + self.bmax) / 2.0
 
     @property
     def size(self) -> np.ndarray:
+        """Box edge lengths along ann x, y, z."""
         return self.bmax - self.bmin
 
 
@@ -200,6 +202,7 @@ class ScanNetScene:
     # ------------------------------------------------------------------ basic accessors
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return int(self.poses.shape[0])
 
     @property
@@ -209,21 +212,27 @@ class ScanNetScene:
 
     @property
     def last_valid(self) -> int:
+        """Index of the last valid pose."""
         return int(np.flatnonzero(self.valid)[-1])
 
     def frame_of(self, t: float) -> int:
+        """Frame index of timeline time ``t``."""
         return int(round(t * self.fps))
 
     def cam_center_raw(self, f: int) -> np.ndarray:
+        """Camera centre in the raw frame."""
         return self.poses[f, :3, 3].copy()
 
     def cam_center_ann(self, f: int) -> np.ndarray:
+        """Camera centre in the annotation frame."""
         return self.A[:3, :3] @ self.poses[f, :3, 3] + self.A[:3, 3]
 
     def instance(self, object_id: int) -> Instance:
+        """Instance by objectId."""
         return next(i for i in self.instances if i.object_id == object_id)
 
     def labels(self) -> dict[str, list[Instance]]:
+        """Instances grouped by label."""
         out: dict[str, list[Instance]] = {}
         for inst in self.instances:
             out.setdefault(inst.label, []).append(inst)
@@ -231,6 +240,7 @@ class ScanNetScene:
 
     # ------------------------------------------------------------------ visibility
     def _compute_visibility(self) -> None:
+        """Fill the visibility caches."""
         n = self.n_frames
         vis = np.zeros((len(self.instances), n), bool)
         behind = np.zeros((len(self.instances), n), bool)
@@ -282,9 +292,11 @@ class ScanNetScene:
         return math.degrees(math.atan2(R[1, 0], R[0, 0]))
 
     def displacement(self, f0: int, f1: int) -> float:
+        """Camera displacement between two frames (m)."""
         return float(np.linalg.norm(self.poses[f1, :3, 3] - self.poses[f0, :3, 3]))
 
     def path_length(self, f0: int, f1: int) -> float:
+        """Camera path length summed over the frames in [f0, f1] (m)."""
         p = self.poses[f0 : f1 + 1, :3, 3]
         return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
@@ -304,12 +316,15 @@ class ScanNetScene:
         return math.degrees(math.atan2(a[1] * b[0] - a[0] * b[1], a[0] * b[0] + a[1] * b[1]))
 
     def distance_to_camera(self, inst: Instance, f: int) -> float:
+        """Distance from the camera centre to the instance box at frame ``f`` (m)."""
         return point_box_distance(self.cam_center_ann(f), inst.center, inst.size)
 
     def box_distance(self, a: Instance, b: Instance) -> float:
+        """Minimum distance between two instance boxes (m)."""
         return aabb_distance(a.bmin, a.bmax, b.bmin, b.bmax)
 
     def interval_ok(self, f0: int, f1: int) -> bool:
+        """True when every pose in [f0, f1] is valid."""
         return 0 <= f0 <= f1 < self.n_frames and bool(np.all(self.valid[f0 : f1 + 1]))
 
     def describe(self) -> dict:

@@ -97,10 +97,12 @@ class TrackedObject:
     world: np.ndarray = field(default=None)  # (N, 3) world centre from the written rows
 
     def position(self, t: np.ndarray) -> np.ndarray:
+        """World centre at times ``t`` (n, 3)."""
         s = self.v0 * t + 0.5 * self.a * t * t
         return self.p0 + np.outer(s, self.u)
 
     def velocity(self, t: np.ndarray) -> np.ndarray:
+        """World velocity at times ``t`` (n, 3)."""
         return np.outer(self.v0 + self.a * t, self.u)
 
 
@@ -132,14 +134,17 @@ class WaymoSegment:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return int(self.micros.shape[0])
 
     @property
     def t(self) -> np.ndarray:
+        """Timeline seconds of the frames."""
         return (self.micros - self.micros[0]) / 1e6
 
     @property
     def video_end(self) -> float:
+        """Time of the last frame."""
         return float(self.t[-1])
 
     def frame_of(self, t: float) -> int:
@@ -147,10 +152,12 @@ class WaymoSegment:
         return int(np.argmin(np.abs(self.t - t)))
 
     def obj(self, oid: str) -> TrackedObject:
+        """Object by laser_object_id."""
         return next(o for o in self.objects if o.oid == oid)
 
     # ------------------------------------------------------------------ camera geometry
     def T_cv_from_vehicle(self, cam: int) -> np.ndarray:
+        """``T_cam<-vehicle`` with OpenCV camera axes."""
         return np.linalg.inv(self.E[cam] @ T_WAYMO_FROM_CV)
 
     def cam_pose_cv(self, k: int, cam: int) -> np.ndarray:
@@ -158,13 +165,16 @@ class WaymoSegment:
         return self.W[k] @ self.E[cam] @ T_WAYMO_FROM_CV
 
     def cam_centers(self, cam: int) -> np.ndarray:
+        """World centre of camera ``cam`` at every frame (N, 3)."""
         return np.einsum("nij,j->ni", self.W[:, :3, :3], self.E[cam][:3, 3]) + self.W[:, :3, 3]
 
     def K(self, cam: int) -> tuple[float, float, float, float]:
+        """Pinhole ``(f_u, f_v, c_u, c_v)``."""
         f_u, f_v, c_u, c_v = self.intr[cam][:4]
         return (f_u, f_v, c_u, c_v)
 
     def image_size(self, cam: int) -> tuple[int, int]:
+        """Image ``(width, height)``."""
         return (int(self.intr[cam][9]), int(self.intr[cam][10]))
 
     def visible(self, cam: int) -> np.ndarray:
@@ -185,6 +195,7 @@ class WaymoSegment:
 
     # ------------------------------------------------------------------ truth (own numpy)
     def box_in_camera(self, o: TrackedObject, k: int, cam: int) -> dict:
+        """Oriented box in the OpenCV frame of ``cam`` at frame ``k``."""
         T = self.T_cv_from_vehicle(cam)
         R = T[:3, :3] @ rot_z(float(o.heading_v[k]))
         c = T[:3, :3] @ o.center_v[k] + T[:3, 3]
@@ -196,6 +207,7 @@ class WaymoSegment:
         }
 
     def heading_change(self, k0: int, k1: int, cam: int) -> float:
+        """Gravity-horizontal heading change of the camera's optical axis (degrees)."""
         f0 = (self.W[k0] @ self.E[cam])[:3, 0]
         f1 = (self.W[k1] @ self.E[cam])[:3, 0]
         return horizontal_heading_change(f0, f1, np.array([0.0, 0.0, 1.0]))
@@ -207,18 +219,22 @@ class WaymoSegment:
         return math.degrees(math.atan2(a[1] * b[0] - a[0] * b[1], a[0] * b[0] + a[1] * b[1]))
 
     def cam_displacement(self, k0: int, k1: int, cam: int) -> float:
+        """Camera displacement between two frames (m)."""
         c = self.cam_centers(cam)
         return float(np.linalg.norm(c[k1] - c[k0]))
 
     def cam_path(self, k0: int, k1: int, cam: int) -> float:
+        """Camera path length over the frames in [k0, k1] (m)."""
         c = self.cam_centers(cam)[k0 : k1 + 1]
         return float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1)))
 
     def obj_path(self, o: TrackedObject, k0: int, k1: int) -> float:
+        """Object path length over the frames in [k0, k1] (m)."""
         p = o.world[k0 : k1 + 1]
         return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
     def obj_displacement(self, o: TrackedObject, k0: int, k1: int) -> float:
+        """Object displacement between two frames (m)."""
         return float(np.linalg.norm(o.world[k1] - o.world[k0]))
 
     def obj_acceleration(self, o: TrackedObject, k0: int, k1: int) -> float:
@@ -227,6 +243,7 @@ class WaymoSegment:
         return float(np.linalg.norm(v1 - v0) / (self.t[k1] - self.t[k0]))
 
     def distance_to_camera(self, o: TrackedObject, k: int, cam: int) -> float:
+        """Distance from the camera centre to the object box at frame ``k`` (m)."""
         return point_box_distance(self.E[cam][:3, 3], o.center_v[k], o.size, rot_z(float(o.heading_v[k])))
 
     def trajectory_segments(self, cam: int) -> list[tuple[str, float]]:
@@ -244,6 +261,7 @@ class WaymoSegment:
         return segs
 
     def describe(self) -> dict:
+        """Ground truth for world.json."""
         return {
             "segment": self.name,
             "n_frames": self.n_frames,
@@ -319,9 +337,11 @@ class _Ego:
         self.v = v
 
     def interp(self, arr: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Grid values interpolated at times ``t``."""
         return np.interp(t, self.tau, arr)
 
     def pose(self, t: np.ndarray) -> np.ndarray:
+        """``world_from_vehicle`` at times ``t`` (n, 4, 4)."""
         t = np.atleast_1d(np.asarray(t, float))
         out = np.zeros((t.size, 4, 4))
         x, y, z = self.interp(self.x, t), self.interp(self.y, t), self.interp(self.z, t)
@@ -331,6 +351,7 @@ class _Ego:
         return out
 
     def pos_dir(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Ego position and horizontal heading direction at time ``t``."""
         p = np.array([self.interp(self.x, t), self.interp(self.y, t), self.interp(self.z, t)], float)
         yaw = float(self.interp(self.yaw, t))
         return p, np.array([math.cos(yaw), math.sin(yaw), 0.0])
@@ -616,4 +637,5 @@ DEFAULT_TURNS = [1, 2, 0, 1]
 
 
 def build_default(seed: int) -> list[tuple[WaymoSegment, _Ego]]:
+    """The default segments (turn counts in ``DEFAULT_TURNS``)."""
     return [build_segment(stable_seed(seed, f"waymo|{i}"), n) for i, n in enumerate(DEFAULT_TURNS)]
