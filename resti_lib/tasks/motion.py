@@ -1,0 +1,220 @@
+"""Motion subjects of Displacement & Path Length and Speed & Acceleration.
+
+A question's subject is the camera (ScanNet: ``T_raw<-cam``; Waymo: the video's camera,
+``world_from_vehicle @ extrinsic`` in OpenCV axes; Omni6DPose: the camera rebased to its first
+frame) or a Waymo object track (LiDAR box centres in the segment world frame).
+
+Waymo objects are matched in steps, each recorded in the evidence:
+
+1. the description's head noun gives a box type and size class (:data:`referents.WAYMO_NOUNS`);
+2. the track must cover the asked interval and be visible in the video's camera at one of its
+   samples inside the interval at least (frustum test with the camera intrinsics);
+3. a motion cue of the description ("parked") keeps static tracks; otherwise a question that
+   presupposes motion ("traveled", "accelerating") keeps tracks that move at least
+   ``min_motion_m`` over the interval, when any do;
+4. when several remain, the legacy value may decide: the one track whose value agrees with the
+   legacy Answer Detail (comparison rule of the task) is taken; otherwise ``ambiguous_instance``
+   with every candidate's value and their spread.
+
+A question whose subject is a bare "the car" / "the vehicle" on a Waymo video names two possible
+subjects (the recording car, whose camera films, and the tracked cars): it is excluded with
+``ambiguous_subject`` when some tracked vehicle of the segment moves during the interval (in view
+or not: the recording car is never in view either), with the camera's and each candidate's value
+and visibility in the evidence. Only when no tracked vehicle moves does the source decide (the
+camera).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..errors import ContractError
+from ..geometry import trajectory as G
+from ..geometry.trajectory import PoseTrack
+from .referents import (
+    GENERIC_NOUNS,
+    WAYMO_NOUNS,
+    SceneView,
+    box_from,
+    box_visibility,
+    in_camera,
+    read_phrase,
+    size_fits,
+)
+from .scalar_audit import Excluded, tie_break_by_legacy
+
+__all__ = ["Subject", "ambiguous_subject", "camera_subject", "waymo_object_subject"]
+
+SUBJECT_TEXT = {"ScanNet": "camera", "Waymo": "camera", "Omni6DPose": "camera"}
+
+
+class Subject:
+    """A resolved motion subject: its track, a text for the question and evidence."""
+
+    def __init__(self, kind: str, track: PoseTrack, text: str, evidence: dict, entity: dict, files: list):
+        self.kind, self.track, self.text, self.evidence, self.entity, self.files = (kind, track, text, evidence,
+                                                                                     entity, files)
+
+
+def camera_subject(view: SceneView) -> Subject:
+    """The camera of the video (optical centre track, OpenCV axes)."""
+    if view.source == "ScanNet":
+        tr = view.seq.camera_track()
+        files = [tr.source]
+        chain = "P(t) = T_raw<-cam (.sens camera_to_world); position = camera centre"
+    elif view.source == "Waymo":
+        tr = view.seq.camera_track(view.camera)
+        files = [str(view.seq.path("vehicle_pose")), str(view.seq.path("camera_calibration"))]
+        chain = "world_from_vehicle(t) @ extrinsic(camera) @ waymo->opencv; position = camera centre"
+    else:
+        tr = view.seq.camera_track(rebase=True)
+        files = [str(view.seq.dir)]
+        chain = "T_c0<-cam(t) (ROPE camera pose, verified convention, rebased to the first frame)"
+    return Subject("camera", tr, "the camera", {"subject": "camera", "track": tr.name, "transform_chain": chain},
+                   {"kind": "camera"}, files)
+
+
+def _track(view: SceneView, oid: str) -> PoseTrack:
+    cache = view.__dict__.setdefault("_tracks", {})
+    if oid not in cache:
+        cache[oid] = view.seq.object_track(oid)
+    return cache[oid]
+
+
+def _cam_track(view: SceneView) -> PoseTrack:
+    cache = view.__dict__.setdefault("_tracks", {})
+    key = ("camera", view.camera)
+    if key not in cache:
+        cache[key] = view.seq.camera_track(view.camera)
+    return cache[key]
+
+
+def visible_in_interval(view: SceneView, tr: PoseTrack, t0: float, t1: float) -> dict:
+    """How many of the track's samples inside ``[t0, t1]`` are visible in the video's camera."""
+    tol = 1e-3
+    idx = np.flatnonzero((tr.times >= t0 - tol) & (tr.times <= t1 + tol))
+    cam = _cam_track(view)
+    intr = view.seq.camera_calibration(view.camera)
+    k = intr["intrinsics"]
+    intr = {"fx": k["f_u"], "fy": k["f_v"], "cx": k["c_u"], "cy": k["c_v"], "width": intr["width"],
+            "height": intr["height"]}
+    Tc, _ = G.pose_at(cam, tr.times[idx], "linear", G.DEFAULT_TOL, errors="nan")
+    n_vis = 0
+    for j, i in enumerate(idx):
+        if not np.isfinite(Tc[j]).all():
+            continue
+        size = tr.meta["size"][i]
+        b = box_from(tr.T[i, :3, 3], tr.T[i, :3, :3], size)
+        v = box_visibility(in_camera(b, Tc[j]), intr, near=view.near, far=view.far, min_fraction=view.min_fraction)
+        n_vis += bool(v["visible"])
+    return {"n_samples": int(idx.size), "n_visible": int(n_vis)}
+
+
+def _covers(tr: PoseTrack, t0: float, t1: float, tol: float = 0.06) -> bool:
+    """The track has samples from ``t0`` to ``t1`` (within ``tol``, about half a Waymo frame)."""
+    return bool(tr.times[0] <= t0 + tol and tr.times[-1] >= t1 - tol)
+
+
+def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float,
+                         value_fn: Callable[[PoseTrack], float], detail, unit: str, rule, params: dict, *,
+                         presupposes_motion: bool) -> Subject:
+    """Resolve a Waymo object track by description (see the module docstring); raises Excluded."""
+    ph = read_phrase(desc)
+    noun, plural, mev, pred = view.matcher(ph)
+    if ph.grouped or plural:
+        raise Excluded("grouped_referent", "grouped_referent", phrase=desc,
+                       marker=ph.grouped or f"plural: {mev.get('matched')}")
+    typed = [i for i in view.all_instances() if pred(i)]
+    ev = {"phrase": desc, "noun_class": mev, "n_type_and_size": len(typed)}
+    if noun is None or not typed:
+        raise Excluded("no_source_instance", "no_source_instance", **ev,
+                       types_in_segment=view.labels())
+    cands, seen = [], []
+    for inst in typed:
+        tr = _track(view, inst.id)
+        if not _covers(tr, t0, t1):
+            continue
+        vis = visible_in_interval(view, tr, t0, t1)
+        seen.append({"id": inst.id, **vis})
+        if vis["n_visible"] == 0:
+            continue
+        try:
+            path, _ = G.path_length(tr, t0, t1, tol=float(params.get("time_tol", 1e-3)), gaps="skip")
+            value = float(value_fn(tr))
+        except ContractError:
+            continue
+        cands.append({"id": inst.id, "track": tr, "path_m": path, "value_si": value, **vis})
+    ev["n_covering_and_visible"] = len(cands)
+    if not cands:
+        raise Excluded("not_visible_at_frame", "not_visible", **ev, t=[t0, t1], camera=view.camera,
+                       covering_tracks=seen,
+                       note="no track of the described class covers the interval and is seen by the camera")
+    min_motion = float(params.get("min_motion_m", 0.5))
+    if ph.motion == "static":
+        keep = [c for c in cands if c["path_m"] < min_motion]
+        ev["motion_cue"] = "static"
+    elif presupposes_motion or ph.motion == "moving":
+        keep = [c for c in cands if c["path_m"] >= min_motion]
+        ev["motion_cue"] = "moving (presupposed by the question)" if presupposes_motion else "moving"
+    else:
+        keep = cands
+    cands = keep or cands
+    ev["n_after_motion_cue"] = len(cands)
+    if len(cands) > 1:
+        tb = params.get("legacy_tie_break", True)
+        enabled = bool(tb.get("Waymo", True) if isinstance(tb, dict) else tb)
+        k, tev = tie_break_by_legacy([c["id"] for c in cands], [c["value_si"] for c in cands], detail, unit, rule,
+                                     enabled=enabled)
+        ev["referent"] = tev
+        if k is None:
+            vals = [c["value_si"] for c in cands]
+            raise Excluded("ambiguous_instance", "multiple_instances", **ev, candidates=[c["id"] for c in cands],
+                           value_spread_si=round(float(max(vals) - min(vals)), 6))
+        cands = [cands[k]]
+    c = cands[0]
+    tr = c["track"]
+    ev.update({"id": c["id"], "visible_samples": c["n_visible"], "samples": c["n_samples"],
+               "track": tr.name, "subject": f"object {c['id']}",
+               "transform_chain": "T_world<-box = world_from_vehicle(frame) [yaw(heading) | centre]; "
+                                  "position = box centre"})
+    return Subject("object", tr, "", ev, {"kind": "object", "id": c["id"], "label": noun, "type": tr.meta.get("type")},
+                   [str(view.seq.path("lidar_box")), str(view.seq.path("vehicle_pose"))])
+
+
+def ambiguous_subject(view: SceneView, desc: str | None, t0: float, t1: float,
+                      value_fn: Callable[[PoseTrack], float], params: dict) -> Subject:
+    """A bare "the car": excluded when a tracked vehicle moves, else the camera (the evidence says so)."""
+    cam = camera_subject(view)
+    ev = {"description": desc, "subjects": ["camera (recording vehicle)", "tracked vehicles"]}
+    try:
+        ev["camera_value_si"] = round(float(value_fn(cam.track)), 6)
+    except ContractError as e:
+        ev["camera_error"] = str(e)
+    objs = []
+    if view.source == "Waymo":
+        ph = read_phrase(desc)
+        noun = ph.head.split()[-1] if ph.head else "car"
+        typ, rng = WAYMO_NOUNS.get(noun if noun in GENERIC_NOUNS else "car")
+        min_motion = float(params.get("min_motion_m", 0.5))
+        for inst in view.all_instances():
+            if inst.label != typ or not size_fits(inst.dims, rng):
+                continue
+            tr = _track(view, inst.id)
+            if not _covers(tr, t0, t1):
+                continue
+            try:
+                path, _ = G.path_length(tr, t0, t1, tol=float(params.get("time_tol", 1e-3)), gaps="skip")
+                if path < min_motion:
+                    continue
+                objs.append({"id": inst.id, "value_si": round(float(value_fn(tr)), 6), "path_m": round(path, 6),
+                             "visible_samples": visible_in_interval(view, tr, t0, t1)["n_visible"]})
+            except ContractError:
+                continue
+    ev.update({"object_candidates": objs, "n_object_candidates": len(objs)})
+    if objs:
+        raise Excluded("ambiguous_subject", None, **ev)
+    cam.evidence.update({"subject_resolution": "no tracked vehicle moves in view during the interval: the "
+                                               "recording vehicle's camera is the only candidate", **ev})
+    return cam
