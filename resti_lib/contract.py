@@ -30,7 +30,6 @@ _T_POINT = [
     re.compile(rf"\bat\s+({NUM})\s*s(?:econds?)?\b", re.I),
     re.compile(r"\bsource frame\s+(\d+)\s*\((\d+(?:\.\d+)?)\s*FPS", re.I),
 ]
-_PREMISE_T = re.compile(rf"(?:pose at|at)\s+t\s*=\s*({NUM})\s*s.*?(?:what|,)", re.I | re.S)
 _UNIT_TAG = re.compile(r"\(unit:\s*([^)]+)\)", re.I)
 _JSON_OBJ = re.compile(r"\{[^{}]*\}")
 
