@@ -82,7 +82,7 @@ _LABELS: dict[str, dict] = {
     "cabinet": {
         "size": ((0.7, 1.1), (0.4, 0.6), (0.9, 1.4)),
         "z": 0.0,
-        "desc": ["Tall white cabinet with two doors", "Low wooden cabinet with drawers"],
+        "desc": ["Tall white cabinet with two handles", "Low wooden cabinet with drawers"],
     },
     "refrigerator": {
         "size": ((0.65, 0.85), (0.6, 0.75), (1.6, 1.9)),
@@ -92,7 +92,7 @@ _LABELS: dict[str, dict] = {
     "trash can": {
         "size": ((0.3, 0.4), (0.3, 0.4), (0.45, 0.7)),
         "z": 0.0,
-        "desc": ["Small white trash can with a pedal lid", "Black trash can near the door"],
+        "desc": ["Small white trash can with a pedal lid", "Black trash can with a swing lid"],
         "group": ["the pair of trash cans", "both trash cans"],
     },
     "desk": {
