@@ -5,9 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from resti_lib import paths
+from resti_lib.geometry import trajectory as G
+from resti_lib.sources.waymo import WaymoSegment
 from resti_lib.tasks.run import run_task
 
 
@@ -72,3 +75,35 @@ def significant_attacks(run) -> list[dict]:
 
     table = attack_table(run.result.accepted)
     return table[table["significant"]].to_dict("records")
+
+
+def unseen_subject_rows(run, man, world) -> set[int]:
+    """Rows whose subject the generator took although the camera never sees it.
+
+    The generator falls back to unseen movers when none is in view; the audit requires the
+    subject in view (ReSTI v5: out-of-frustum targets are excluded). Checked here independently:
+    the manifest's object centre never projects into the camera image during the interval.
+    """
+
+    out = set()
+    for o in run.outcomes:
+        if o.reasons != ["not_visible_at_frame"] or o.source != "Waymo":
+            continue
+        m = man[o.row]
+        seg = WaymoSegment(world / "waymo", m["sequence"])
+        tr = seg.object_track(m["contract"]["entity"]["id"])
+        t0, t1 = m["contract"]["times"]
+        sel = (tr.times >= t0 - 1e-3) & (tr.times <= t1 + 1e-3)
+        cam = seg.camera_track(m["camera"])
+        Tc, _ = G.pose_at(cam, tr.times[sel], "linear", 1e-6)
+        p = np.einsum("nji,nj->ni", Tc[:, :3, :3], tr.positions[sel] - Tc[:, :3, 3])  # R^T (x - c)
+        cal = seg.camera_calibration(m["camera"])
+        k = cal["intrinsics"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = k["f_u"] * p[:, 0] / p[:, 2] + k["c_u"]
+            v = k["f_v"] * p[:, 1] / p[:, 2] + k["c_v"]
+        inside = (p[:, 2] > 0) & (u >= 0) & (u < cal["width"]) & (v >= 0) & (v < cal["height"])
+        assert not inside.any(), f"row {o.row}: the subject is in view, yet excluded"
+        assert m["expected_verdict"] != "excluded"
+        out.add(o.row)
+    return out
