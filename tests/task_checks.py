@@ -91,3 +91,23 @@ def check_attacks(mr: MiniRun, allowed: tuple = ()) -> None:
     tab = attack_table(mr.run.result.accepted)
     sig = tab[tab["significant"] & ~tab["attack"].isin(allowed)]
     assert sig.empty, sig.to_string()
+
+
+def check_notebook(stem: str, params_yaml: str) -> None:
+    """The task notebook declares every shared key and every key of its params YAML, and is
+    committed without outputs under the generic ``python3`` kernelspec."""
+    import nbformat
+    import yaml
+
+    from resti_lib import paths
+    from resti_lib.runner import check_parameters, notebook_parameters
+    from resti_lib.tasks.run import COMMON_KEYS
+
+    nb_path = paths.NOTEBOOKS / f"{stem}.ipynb"
+    task_keys = yaml.safe_load((paths.PARAMS / params_yaml).read_text())
+    declared = set(notebook_parameters(nb_path))
+    assert set(COMMON_KEYS) | set(task_keys) <= declared, sorted(set(COMMON_KEYS) | set(task_keys) - declared)
+    check_parameters(nb_path, {**{k: None for k in COMMON_KEYS}, **task_keys})
+    nb = nbformat.read(nb_path, as_version=4)
+    assert nb.metadata["kernelspec"]["name"] == "python3"
+    assert all(not c.get("outputs") and c.get("execution_count") is None for c in nb.cells if c.cell_type == "code")

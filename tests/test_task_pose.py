@@ -11,7 +11,14 @@ from resti_lib import values as V
 from resti_lib.geometry.frames import make_T, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.tasks import pose as P
-from tests.task_checks import check_attacks, check_defects, check_exclusions, check_values, run_on_miniworld
+from tests.task_checks import (
+    check_attacks,
+    check_defects,
+    check_exclusions,
+    check_notebook,
+    check_values,
+    run_on_miniworld,
+)
 
 TASK = P.TASK
 
@@ -120,3 +127,7 @@ def test_rebuilt_options_have_distinct_valid_rotations(pose_run):
                 assert not np.allclose(Rs[i], Rs[j]), r["ReSTI ID"]
         q = r["Question"]
         assert "t=" in q and ("camera-to-world" in q or "camera-to-reference" in q)
+
+
+def test_notebook_parameters():
+    check_notebook("08_pose", "pose.yaml")

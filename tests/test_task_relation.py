@@ -12,7 +12,14 @@ from resti_lib.geometry.frames import make_T, yaw_matrix
 from resti_lib.rng import row_rng
 from resti_lib.tasks import relation as RE
 from resti_lib.tasks.base import AnswerSpec, build_options
-from tests.task_checks import check_attacks, check_defects, check_exclusions, check_values, run_on_miniworld
+from tests.task_checks import (
+    check_attacks,
+    check_defects,
+    check_exclusions,
+    check_notebook,
+    check_values,
+    run_on_miniworld,
+)
 
 TASK = RE.TASK
 
@@ -102,3 +109,7 @@ def test_mount_labels_verified_by_calibration(rel_run):
     tab = RE.diagnosis_table(rel_run.run.outcomes)
     w = tab[tab["source"] == "Waymo"]
     assert len(w) and w["name_agrees"].all() and (w["edge_margin_deg"] > 15).all()
+
+
+def test_notebook_parameters():
+    check_notebook("04_relation", "relation.yaml")

@@ -12,7 +12,14 @@ from resti_lib.adjudicate import Rule
 from resti_lib.geometry.frames import R_WAYMO_FROM_CV, make_T, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.tasks import trajectory as TR
-from tests.task_checks import check_attacks, check_defects, check_exclusions, check_values, run_on_miniworld
+from tests.task_checks import (
+    check_attacks,
+    check_defects,
+    check_exclusions,
+    check_notebook,
+    check_values,
+    run_on_miniworld,
+)
 
 TASK = TR.TASK
 
@@ -122,3 +129,7 @@ def test_path_figure(traj_run, miniworld, tmp_path):
     track = WaymoSegment(miniworld / "waymo", seq).camera_track(int(cam))
     p = TR.plot_path(track, o.evidence["operator"], tmp_path / "07_trajectory_path.png")
     assert p.exists() and p.stat().st_size > 1000
+
+
+def test_notebook_parameters():
+    check_notebook("07_trajectory", "trajectory.yaml")

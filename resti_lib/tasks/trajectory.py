@@ -369,6 +369,32 @@ def plot_path(track: PoseTrack, evidence: dict, path: str | Path, *, title: str 
     return path
 
 
+def plot_paths(outcomes: list[Outcome], params: dict, fig_dir: str | Path, *, prefix: str = "07_trajectory_path",
+               max_plots: int = 4) -> list[Path]:
+    """Top-down path figures (:func:`plot_path`) for up to ``max_plots`` distinct videos, those with
+    the most turns first; files ``<fig_dir>/<prefix>_<k>.png``."""
+    from ..sources.context import SourceContext
+
+    ctx = SourceContext.from_params(params)
+    seen, chosen = set(), []
+    ranked = sorted((o for o in outcomes if o.verdict != "excluded" and "operator" in o.evidence),
+                    key=lambda o: (-len(o.evidence["operator"].get("turn_windows", [])), o.row))
+    for o in ranked:
+        if o.video not in seen:
+            seen.add(o.video)
+            chosen.append(o)
+        if len(chosen) == max_plots:
+            break
+    out = []
+    for k, o in enumerate(chosen):
+        vs = ctx.locate(o.video)
+        track = ctx.waymo(vs.sequence).camera_track(vs.camera)
+        segs = [tuple(s) for s in o.evidence["operator"].get("segments", [])]
+        out.append(plot_path(track, o.evidence["operator"], Path(fig_dir) / f"{prefix}_{k}.png",
+                             title=f"{o.video}: {V.format_trajectory(segs)}"))
+    return out
+
+
 # ------------------------------------------------------------------------------ measure operator
 
 
@@ -394,5 +420,6 @@ __all__ = [
     "diagnosis_table",
     "on_grid",
     "plot_path",
+    "plot_paths",
     "question_text",
 ]
