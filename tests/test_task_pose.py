@@ -131,3 +131,59 @@ def test_rebuilt_options_have_distinct_valid_rotations(pose_run):
 
 def test_notebook_parameters():
     check_notebook("08_pose", "pose.yaml")
+
+
+# ------------------------------------------------------------------------- stubbed sources
+
+
+class _Rope:
+    def __init__(self, track):
+        self.track, self.dir, self.obj_meta_path = track, "ROPE/000001", "Meta/real_obj_meta.json"
+
+    def camera_track(self, rebase=True):
+        return self.track
+
+    def world_up_in_track_frame(self, up):
+        return np.asarray(up, float)
+
+
+class _Ctx:
+    video_map = None
+
+    def __init__(self, rope):
+        self._rope = rope
+
+    def locate(self, video):
+        from resti_lib.sources.mapping import VideoSource
+
+        return VideoSource("Omni6DPose", "000001", None, "stub")
+
+    def rope(self, seq):
+        return self._rope
+
+
+def _row(question, detail, t0, t1):
+    return {"row": 0, "Legacy Row Key": "Omni6DPose|Pose Estimation|000001.mp4|0|uid=0", "Source": "Omni6DPose",
+            "Task": TASK, "Video": "000001.mp4", "ID": 0, "Question": question, "Prompt": "",
+            "time_start": t0, "time_end": t1, "Answer Detail": detail, "Candidates": {}}
+
+
+def test_omni_pose_relative_to_the_premise_camera():
+    from resti_lib.geometry.frames import invert_T
+
+    tr = _track(n=301)
+    truth = invert_T(tr.T[20]) @ tr.T[50]  # camera at 5 s seen from the camera at 2 s
+    r = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=5 s?",
+             V.format_pose(truth), 2.0, 5.0)
+    o = P.audit_row(r, _Ctx(_Rope(tr)), {})
+    assert o.verdict == "retained" and not o.defects
+    assert np.allclose(o.answer.value, truth)
+    assert "t=2 s as the identity" in o.question and "t=5 s" in o.question
+    wrong = _row(r["Question"], V.format_pose(tr.T[50]), 2.0, 5.0)  # legacy forgot to re-base
+    o2 = P.audit_row(wrong, _Ctx(_Rope(tr)), {})
+    assert o2.verdict == "corrected" and o2.defects == ["value_mismatch"]
+    same = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=2 s?",
+                V.format_pose(np.eye(4)), 2.0, 2.0)
+    o3 = P.audit_row(same, _Ctx(_Rope(tr)), {})
+    assert o3.verdict == "excluded" and o3.reasons == ["premise_equals_target"]
+    assert o3.defects == ["premise_equals_answer"] and o3.evidence["same_time"]

@@ -113,3 +113,63 @@ def test_mount_labels_verified_by_calibration(rel_run):
 
 def test_notebook_parameters():
     check_notebook("04_relation", "relation.yaml")
+
+
+class _Seg:
+    def __init__(self, E):
+        self.E = E
+
+    def camera_calibration(self, cam):
+        return {"extrinsic": self.E, "row": 0}
+
+    def path(self, component):
+        return f"{component}/seg.parquet"
+
+
+class _Ctx:
+    video_map = None
+
+    def __init__(self, E):
+        self.seg = _Seg(E)
+
+    def locate(self, video):
+        from resti_lib.sources.mapping import VideoSource
+
+        return VideoSource("Waymo", "seg", 2, "stub")
+
+    def waymo(self, seq):
+        return self.seg
+
+
+def test_mount_label_follows_the_calibration_not_the_name():
+    row = {"row": 3, "Legacy Row Key": "Waymo|Spatial Relation|seg_camera_2.mp4|0|uid=0", "Source": "Waymo",
+           "Task": TASK, "Video": "seg_camera_2.mp4", "ID": 0, "Prompt": "", "time_start": 0.0, "time_end": 19.8,
+           "Question": "What is the orientation of the camera mounted on the moving car relative to the car's "
+                       "forward direction?", "Answer Detail": "Front-Left", "Candidates": {}}
+    E = make_T(yaw_matrix(math.radians(-45.0)), [1.5, -0.1, 2.1])  # FRONT_LEFT by name, faces front-right
+    o = RE.audit_row(row, _Ctx(E), {})
+    assert o.answer.value == "Front-Right" and o.verdict == "corrected" and o.defects == ["value_mismatch"]
+    assert o.evidence["mount"]["name_label"] == "Front-Left" and not o.evidence["mount"]["name_agrees_with_calibration"]
+    ok = RE.audit_row(row, _Ctx(make_T(yaw_matrix(math.radians(44.0)), [1.5, 0.1, 2.1])), {})
+    assert ok.verdict == "retained" and ok.answer.value == "Front-Left"
+    edge = RE.audit_row(row, _Ctx(make_T(yaw_matrix(math.radians(21.0)), [1.5, 0.1, 2.1])), {})
+    assert edge.reasons == ["no_dominant_relation"] and edge.evidence["edge_margin_deg"] == pytest.approx(1.5)
+
+
+def test_measure_operators_match_the_task(rel_run, miniworld):
+    from resti_lib.measure import evaluate_contract
+
+    params = {"waymo_root": str(miniworld / "waymo"), "omni6d_root": str(miniworld / "omni6d")}
+    for o in rel_run.run.outcomes:
+        if o.verdict == "excluded":
+            continue
+        if o.source == "Waymo":
+            seq, cam = o.video[:-4].rsplit("_camera_", 1)
+            c = {"source": "Waymo", "sequence": seq, "camera": int(cam), "entity": {"kind": "camera"},
+                 "times": [0.0], "operator": "mounted_relation"}
+        else:
+            a, b = o.contract["entity"]["ids"]
+            c = {"source": "Omni6DPose", "sequence": o.video[:-4], "entity": {"kind": "object", "id": a, "reference": b},
+                 "times": o.contract["times"], "operator": "relative_position"}
+        res = evaluate_contract(c, params)
+        assert res.get("value") == o.answer.value, (o.row, res.get("error"))

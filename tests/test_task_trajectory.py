@@ -133,3 +133,15 @@ def test_path_figure(traj_run, miniworld, tmp_path):
 
 def test_notebook_parameters():
     check_notebook("07_trajectory", "trajectory.yaml")
+
+
+def test_measure_operator_matches_the_task(traj_run, miniworld):
+    from resti_lib.measure import evaluate_contract
+
+    acc = {r["Legacy Row Key"]: r for r in traj_run.run.result.accepted}
+    o = next(o for o in traj_run.run.outcomes if o.verdict != "excluded")
+    seq, cam = o.video[:-4].rsplit("_camera_", 1)
+    res = evaluate_contract({"source": "Waymo", "sequence": seq, "camera": int(cam), "entity": {"kind": "camera"},
+                             "times": o.contract["times"], "operator": "trajectory"},
+                            {"waymo_root": str(miniworld / "waymo")})
+    assert res.get("value") == acc[o.key]["Answer Detail"], res.get("error")

@@ -43,6 +43,7 @@ from ..adjudicate import Rule, same_quantity_agrees, verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
 from ..geometry import trajectory as G
+from ..geometry.frames import invert_T
 from ..geometry.trajectory import PoseTrack
 from .base import AnswerSpec, Outcome
 
@@ -277,6 +278,13 @@ def audit_row(r: dict, ctx, params: dict) -> Outcome:
     except ContractError as e:
         return o.exclude("invalid_pose_at_time", error=str(e), premise_time=t0, target_time=t1)
     o.frames = {"premise": e0, "target": e1}
+    if src == "Omni6DPose" and not np.allclose(T0, np.eye(4), atol=1e-9):
+        # the reference is the camera at the premise time: re-base the whole track on it
+        base = invert_T(T0)
+        track = PoseTrack(track.times, base @ track.T, name=track.name + " (re-based at the premise time)",
+                          source=track.source, valid=track.valid, meta=track.meta)
+        up = tuple(float(x) for x in base[:3, :3] @ np.asarray(up, float))
+        T0, T1 = base @ T0, base @ T1
     compact = src == "Waymo"
     disp = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
     rot = rotation_angle_deg(T0[:3, :3], T1[:3, :3])
