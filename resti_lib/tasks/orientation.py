@@ -1,0 +1,446 @@
+"""Ego-Centric Orientation: gravity-relative heading change, and the legacy vertical-plane angle.
+
+Repair (report, "Repair: gravity-relative optical heading")
+-----------------------------------------------------------
+``f(t) = R(t) a`` (``a`` the optical-forward axis: OpenCV camera ``+Z``; for Waymo that is the
+Waymo camera's ``+X``, which the OpenCV-converted track carries as ``+Z``), projected on the plane
+orthogonal to world up ``u`` (ScanNet raw ``+Z``, Waymo world ``+Z``), and
+``theta = atan2(u . (h0 x h1), h0 . h1)`` wrapped to [-180, 180)
+(:func:`resti_lib.geometry.trajectory.heading_change`). A sequence ending in invalid poses has
+its interval shortened to the last valid timestamp, and the question says so; an invalid pose is
+never replaced.
+
+Diagnosis (report, "Diagnosis: a source-axis component is not heading")
+-----------------------------------------------------------------------
+The legacy operator projects one column of the camera-to-world rotation *in the source's camera
+axes* (ScanNet OpenCV, Waymo's +X forward/+Z up camera axes) on the raw-world X-Z plane and takes
+the signed endpoint angle (:func:`resti_lib.geometry.trajectory.legacy_plane_angle`). Every row
+is evaluated under that operator (both sign conventions) and a few standard heading conventions;
+the evidence lists which reproduce the printed legacy value.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from .. import values as V
+from ..adjudicate import verdict_for
+from ..contract import parse_question
+from ..errors import ContractError, InputError
+from ..geometry import trajectory as G
+from ..geometry.frames import opencv_cam_pose_to_waymo
+from ..geometry.trajectory import PoseTrack
+from ..rng import row_rng
+from ..sources.context import ROOT_KEYS, SourceContext
+from .base import AnswerSpec, Outcome
+
+TASK = "Ego-Centric Orientation"
+
+DEFAULTS: dict[str, Any] = {
+    "angle_abs_tol_deg": 0.01,
+    "time_tol_s": 1e-6,
+    "pose_rule": "linear",
+    "omni6d_up": [0.0, 0.0, 1.0],
+    "invariance_check": True,
+    "spread_deg": {"low": 2.0, "frac": 1.0, "min_high": 3.0, "max_high": 30.0},
+}
+
+#: Conventions evaluated against every legacy value (name -> description).
+CONVENTIONS = {
+    "gravity_heading": "optical forward projected on the plane orthogonal to world up (the repair)",
+    "xz_plane_column2": "source-axes camera column 2 on raw-world X-Z, positive from +Z toward +X "
+                        "(right-handed about +Y)",
+    "xz_plane_column2_reversed": "source-axes camera column 2 on raw-world X-Z, positive from +X toward +Z",
+    "euler_zyx_yaw": "difference of the ZYX Euler yaw of the camera-to-world rotation",
+    "right_axis_heading": "camera +X (right) projected on the horizontal plane",
+    "relative_rotation_about_up": "component about world up of the rotation vector of R1 R0^T",
+    "geodesic_angle": "total rotation angle between the endpoint rotations (unsigned)",
+}
+LEGACY_OPERATORS = ("xz_plane_column2", "xz_plane_column2_reversed")
+
+
+def task_params(params: dict | None) -> dict:
+    """``DEFAULTS`` overridden by ``params`` (one level of dict merging)."""
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in DEFAULTS.items()}
+    for k, v in (params or {}).items():
+        out[k] = {**out[k], **v} if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def option_spread(theta: float, p: dict) -> tuple[float, float]:
+    """Per-row bounds of the distractor spread (degrees), scaled with the answer's magnitude.
+
+    ``high = clip(frac * |theta|, min_high, max_high)``, ``low = min(low, high)``. A heading change
+    of 1 degree gets alternatives a few degrees away, one of 90 degrees up to 30 degrees away. With a
+    fixed wide spread, answers near 0 (straight drives: about half of the real rows) would be the
+    candidate closest to zero, hence the shortest printed string, far more often than 1/5.
+    """
+    sp = p["spread_deg"]
+    high = min(float(sp["max_high"]), max(float(sp["min_high"]), float(sp["frac"]) * abs(float(theta))))
+    return (min(float(sp["low"]), high), high)
+
+
+# ==================================================================================== tracks
+
+
+class Tracks:
+    """A camera's tracks for the heading operators.
+
+    Attributes
+    ----------
+    cv : PoseTrack  ``T_world<-cam`` in OpenCV axes (optical forward ``+Z``).
+    src : PoseTrack  the same poses in the source's own camera axes (ScanNet OpenCV; Waymo +X
+        forward, +Z up), which the legacy operator used.
+    up : world-up unit vector in the track's world.
+    forward : optical-forward axis in the OpenCV camera frame (``(0, 0, 1)``).
+    world, axes_note : words for the evidence.
+    """
+
+    def __init__(self, cv: PoseTrack, src: PoseTrack, up, world: str, axes_note: str, files: list):
+        self.cv, self.src = cv, src
+        self.up = tuple(float(x) for x in up)
+        self.forward = (0.0, 0.0, 1.0)
+        self.world, self.axes_note, self.files = world, axes_note, files
+
+
+def camera_tracks(ctx: SourceContext, source: str, sequence: str, camera: int | None, p: dict) -> Tracks:
+    """The camera tracks of a sequence (see :class:`Tracks`)."""
+    if source == "ScanNet":
+        sc = ctx.scannet(sequence)
+        tr = sc.camera_track()
+        return Tracks(tr, tr, (0.0, 0.0, 1.0), "ScanNet raw scan frame (+Z up)",
+                      "ScanNet camera axes are OpenCV: optical forward = column 2", [tr.source])
+    if source == "Waymo":
+        if camera is None:
+            raise ContractError("Waymo video without a camera number")
+        seg = ctx.waymo(sequence)
+        tr = seg.camera_track(camera)
+        src = PoseTrack(tr.times, opencv_cam_pose_to_waymo(tr.T), name=tr.name + " (Waymo camera axes)",
+                        source=tr.source, meta=tr.meta)
+        return Tracks(tr, src, (0.0, 0.0, 1.0), "Waymo segment world frame (+Z up)",
+                      "Waymo camera axes: +X forward, +Y left, +Z up; optical forward = Waymo +X = OpenCV +Z",
+                      [str(seg.path("vehicle_pose")), str(seg.path("camera_calibration"))])
+    rope = ctx.rope(sequence)
+    tr = rope.camera_track(rebase=True)
+    up = rope.world_up_in_track_frame(np.asarray(p["omni6d_up"], float))
+    return Tracks(tr, tr, up, "ROPE camera frame at the first frame", "OpenCV axes (verified convention)",
+                  [str(rope.dir)])
+
+
+# ================================================================================ conventions
+
+
+def _yaw_zyx(R: np.ndarray) -> float:
+    return float(Rotation.from_matrix(R).as_euler("ZYX", degrees=True)[0])
+
+
+def conventions(tracks: Tracks, t0: float, t1: float, p: dict) -> dict[str, float]:
+    """Every convention of :data:`CONVENTIONS` on the interval ``[t0, t1]`` (degrees)."""
+    rule, tol = str(p["pose_rule"]), float(p["time_tol_s"])
+    out = {}
+    out["gravity_heading"], _ = G.heading_change(tracks.cv, t0, t1, tracks.forward, tracks.up, rule=rule, tol=tol)
+    out["xz_plane_column2"], _ = G.legacy_plane_angle(tracks.src, t0, t1, 2, ("z", "x"), rule=rule, tol=tol)
+    out["xz_plane_column2_reversed"], _ = G.legacy_plane_angle(tracks.src, t0, t1, 2, ("x", "z"), rule=rule,
+                                                               tol=tol)
+    (a, b), _ = G.interval_valid(tracks.cv, t0, t1, tol=tol)
+    T0, _ = G.pose_at(tracks.cv, a, rule, tol)
+    T1, _ = G.pose_at(tracks.cv, b, rule, tol)
+    R0, R1 = T0[:3, :3], T1[:3, :3]
+    out["euler_zyx_yaw"] = float(V.wrap_degrees(_yaw_zyx(R1) - _yaw_zyx(R0)))
+    out["right_axis_heading"] = float(G.horizontal_heading_deg(R0, R1, (1.0, 0.0, 0.0), tracks.up))
+    rv = Rotation.from_matrix(R1 @ R0.T).as_rotvec()
+    out["relative_rotation_about_up"] = float(V.wrap_degrees(math.degrees(float(rv @ np.asarray(tracks.up)))))
+    out["geodesic_angle"] = float(math.degrees(np.linalg.norm(rv)))
+    return out
+
+
+def invariance_error(tracks: Tracks, t0: float, t1: float, p: dict, rng: np.random.Generator) -> float:
+    """|theta(Q R, Q u) - theta(R, u)| in degrees for a random rigid rotation Q of trajectory and world."""
+    rule, tol = str(p["pose_rule"]), float(p["time_tol_s"])
+    (a, b), _ = G.interval_valid(tracks.cv, t0, t1, tol=tol)
+    T0, _ = G.pose_at(tracks.cv, a, rule, tol)
+    T1, _ = G.pose_at(tracks.cv, b, rule, tol)
+    Q = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
+    th = G.horizontal_heading_deg(T0[:3, :3], T1[:3, :3], tracks.forward, tracks.up)
+    thq = G.horizontal_heading_deg(Q @ T0[:3, :3], Q @ T1[:3, :3], tracks.forward, Q @ np.asarray(tracks.up))
+    return float(abs(V.wrap_degrees(thq - th)))
+
+
+# ===================================================================================== rows
+
+
+def rewrite_question(t0: float, t1: float, shortened_from: float | None) -> str:
+    """v5 wording; a shortened interval names its last valid pose and the invalid remainder."""
+    note = ""
+    if shortened_from is not None:
+        note = (f" (the last valid source camera pose; the source poses after it, up to {shortened_from:.6f} "
+                f"seconds, are invalid)")
+    return (f"Between source pose timestamps {t0:.6f} and {t1:.6f} seconds{note}, what is the signed horizontal "
+            "heading change of the camera? Project the camera's optical-forward direction onto the plane "
+            "perpendicular to gravity. Positive angles are counterclockwise about +up when viewed from above; "
+            "report the wrapped angle in [-180°, 180°).")
+
+
+def _parse_legacy(row: dict) -> tuple[float | None, int, str | None]:
+    try:
+        v = V.parse(row.get("Answer Detail"), row=row.get("Legacy Row Key"), field="Answer Detail")
+    except InputError as e:
+        return None, 2, e.message
+    if not isinstance(v, V.Scalar) or not (v.is_angle or v.unit == ""):
+        return None, 2, f"Answer Detail is not an angle: {row.get('Answer Detail')!r}"
+    return float(v.value), int(v.decimals), None
+
+
+def audit_row(row: dict, ctx: SourceContext, p: dict, seed: int = 0) -> Outcome:
+    """Reconstruct, diagnose and rewrite one legacy orientation row."""
+    o = Outcome(row=int(row["row"]), key=row["Legacy Row Key"], task=TASK, source=str(row["Source"]),
+                video=str(row["Video"]), legacy_id=row.get("ID"), verdict="re-contracted",
+                legacy_detail=str(row.get("Answer Detail")))
+    c = parse_question(row, video_map=ctx.video_map)
+    contract = c.to_dict()
+    o.contract = contract
+    if c.sequence is None:
+        return o.exclude("unsupported_question", problem="video maps to no source sequence")
+    t0, t1 = (float(x) for x in (c.times if len(c.times) == 2 else [row["time_start"], row["time_end"]]))
+    try:
+        tracks = camera_tracks(ctx, c.source, c.sequence, c.camera, p)
+        theta, ev = G.heading_change(tracks.cv, t0, t1, tracks.forward, tracks.up, rule=str(p["pose_rule"]),
+                                     tol=float(p["time_tol_s"]))
+        conv = conventions(tracks, t0, t1, p)
+    except (InputError, ContractError) as e:
+        if isinstance(e, InputError) and e.field in ROOT_KEYS.values():
+            raise
+        msg = str(e)
+        reason = "invalid_pose_at_time" if "invalid" in msg.lower() else "unsupported_question"
+        return o.exclude(reason, error=msg, t0=t0, t1=t1)
+    t1_used = float(ev["t1_used"])
+    shortened = ev.get("shortened_to") is not None
+    o.source_files = list(tracks.files)
+    o.frames = {"t0": t0, "t1": t1_used, "indices_t0": ev["indices_t0"], "indices_t1": ev["indices_t1"]}
+    if "frames" in tracks.cv.meta:
+        fr = tracks.cv.meta["frames"]
+        o.frames["source_frames"] = [int(fr[ev["indices_t0"][0]]), int(fr[ev["indices_t1"][-1]])]
+    if "micros" in tracks.cv.meta:
+        mi = tracks.cv.meta["micros"]
+        o.frames["frame_timestamp_micros"] = [int(mi[ev["indices_t0"][0]]), int(mi[ev["indices_t1"][-1]])]
+    o.transform_chain = ("theta = atan2(u.(h0 x h1), h0.h1), h = horizontal projection of R(t) a; "
+                         + tracks.axes_note)
+    legacy, dec, err = _parse_legacy(row)
+    tol = 0.5 * 10.0 ** -dec + float(p["angle_abs_tol_deg"])
+    diag: dict[str, Any] = {"conventions_deg": conv, "tolerance_deg": tol}
+    if legacy is not None:
+        res = {k: float(abs(V.wrap_degrees(legacy - v))) for k, v in conv.items()}
+        repro = sorted((k for k, r in res.items() if r <= tol), key=lambda k: res[k])
+        diag.update({"legacy_deg": legacy, "residuals_deg": res, "reproduced_by": repro})
+        if any(k in repro for k in LEGACY_OPERATORS):
+            o.defects.append("orientation_xz_plane")
+    else:
+        diag["legacy_detail_error"] = err
+    if p.get("invariance_check", True):
+        diag["invariance_error_deg"] = invariance_error(tracks, t0, t1, p, row_rng(seed, o.key, "invariance"))
+    o.evidence["diagnosis"] = diag
+    o.evidence["heading"] = {"value_deg": float(theta), "forward_t0": ev["forward_t0"],
+                             "forward_t1": ev["forward_t1"], "up": list(tracks.up), "world": tracks.world}
+    if shortened:
+        o.evidence["shortened_to"] = float(ev["shortened_to"])
+        o.evidence["shortened_from"] = float(ev["shortened_from"])
+        o.evidence["shortening_reason"] = ev.get("reason")
+    o.verdict = verdict_for(False, None)
+    o.evidence["verdict_reason"] = ("the legacy question names no plane or convention; the value is derived as "
+                                    "the gravity-horizontal heading change of the optical axis")
+    contract.update({"times": [t0, t1_used], "time_stated": True, "unit": "deg",
+                     "frame": f"{tracks.world}; gravity-horizontal plane",
+                     "entity": {"kind": "camera", "camera": c.camera}})
+    if shortened:
+        contract["params"] = {**contract.get("params", {}), "shortened_to": t1_used, "shortened_from": t1}
+    o.contract = contract
+    o.question = rewrite_question(t0, t1_used, t1 if shortened else None)
+    o.time_start, o.time_end = t0, t1_used
+    o.answer = AnswerSpec(kind="angle", value=float(theta), unit="°", decimals=2,
+                          options={"spread": option_spread(theta, p)})
+    return o
+
+
+def audit(rows: pd.DataFrame, ctx: SourceContext, params: dict) -> list[Outcome]:
+    """One :class:`~resti_lib.tasks.base.Outcome` per legacy orientation row."""
+    p = task_params(params)
+    seed = int(params.get("seed", 0) or 0)
+    return [audit_row(r, ctx, p, seed) for r in rows.to_dict("records")]
+
+
+# ===================================================================================== tables
+
+
+def convention_counts(outcomes: list[Outcome]) -> pd.DataFrame:
+    """How many legacy values each convention reproduces, per source (and in total)."""
+    recs = []
+    for o in outcomes:
+        d = o.evidence.get("diagnosis", {})
+        if "reproduced_by" not in d:
+            continue
+        recs.append({"source": o.source, **{k: (k in d["reproduced_by"]) for k in CONVENTIONS}})
+    if not recs:
+        return pd.DataFrame(columns=["convention", "description"])
+    df = pd.DataFrame(recs)
+    out = df.groupby("source")[list(CONVENTIONS)].sum().T
+    out["ALL"] = out.sum(axis=1)
+    out.insert(0, "description", [CONVENTIONS[k] for k in out.index])
+    n = df.groupby("source").size()
+    out.loc["rows"] = ["rows with a readable legacy value", *[int(n.get(s, 0)) for s in out.columns[1:-1]],
+                       int(n.sum())]
+    return out.rename_axis("convention").reset_index()
+
+
+def diagnosis_table(outcomes: list[Outcome]) -> pd.DataFrame:
+    """One row per legacy row: legacy value, repaired value, the legacy operator, shortening."""
+    recs = []
+    for o in outcomes:
+        d = o.evidence.get("diagnosis", {})
+        conv = d.get("conventions_deg", {})
+        recs.append({"row": o.row, "source": o.source, "video": o.video, "verdict": o.verdict,
+                     "legacy_deg": d.get("legacy_deg"), "repaired_deg": conv.get("gravity_heading"),
+                     "xz_plane_deg": conv.get("xz_plane_column2"),
+                     "reproduced_by": ",".join(d.get("reproduced_by", [])),
+                     "t_end": o.time_end, "shortened_from": o.evidence.get("shortened_from"),
+                     "invariance_error_deg": d.get("invariance_error_deg"),
+                     "defects": ",".join(sorted(set(o.defects)))})
+    return pd.DataFrame(recs)
+
+
+def attack_tables(run, *, alpha: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Option-only attacks on the repaired rows and on the legacy rows of the task (before)."""
+    from ..options.attacks import attack_table
+
+    return attack_table(run.result.accepted, alpha=alpha), attack_table(run.legacy.to_dict("records"), alpha=alpha)
+
+
+# ==================================================================================== figures
+
+
+def _arc(ax, a0: float, a1: float, r: float, color: str, label: str) -> None:
+    """Signed arc from angle a0 to a1 (radians, a1 - a0 already the signed change)."""
+    ts = np.linspace(a0, a1, 80)
+    ax.plot(r * np.cos(ts), r * np.sin(ts), color=color, lw=1.4)
+    ax.annotate("", (r * np.cos(ts[-1]), r * np.sin(ts[-1])), (r * np.cos(ts[-3]), r * np.sin(ts[-3])),
+                arrowprops={"arrowstyle": "->", "color": color, "lw": 1.4})
+    mid = ts[len(ts) // 2]
+    ax.text(1.18 * r * np.cos(mid), 1.18 * r * np.sin(mid), label, color=color, fontsize=8, ha="center",
+            va="center")
+
+
+def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = None) -> Path | None:
+    """Endpoint forward vectors of one row on the vertical X-Z plane and on the horizontal plane.
+
+    (a) the source-axes camera column the legacy operator uses, projected on raw-world X-Z, with
+    the signed X-Z angle; (b) the optical-forward vectors projected on the gravity-horizontal
+    plane, with the repaired heading change. Blue: start; gold: end.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    outs = [o for o in run.outcomes if o.verdict != "excluded"]
+    if row is not None:
+        outs = [o for o in outs if o.row == row]
+    elif outs:
+        def gap(o):
+            d = o.evidence["diagnosis"]
+            return abs(float(V.wrap_degrees(d.get("legacy_deg", 0.0) - d["conventions_deg"]["gravity_heading"])))
+        sc = [o for o in outs if o.source == "ScanNet"] or outs
+        outs = [max(sc, key=gap)]
+    if not outs:
+        return None
+    o = outs[0]
+    p = task_params(params)
+    ctx = SourceContext.from_params(params)
+    c = parse_question(run.legacy[run.legacy["row"] == o.row].iloc[0].to_dict(), video_map=ctx.video_map)
+    tracks = camera_tracks(ctx, c.source, c.sequence, c.camera, p)
+    T0, _ = G.pose_at(tracks.src, o.time_start, str(p["pose_rule"]), float(p["time_tol_s"]))
+    T1, _ = G.pose_at(tracks.src, o.time_end, str(p["pose_rule"]), float(p["time_tol_s"]))
+    d = o.evidence["diagnosis"]
+    conv = d["conventions_deg"]
+    fig, axes = plt.subplots(1, 2, figsize=(8.4, 4.0))
+    # (a) vertical plane: components (x, z) of source column 2; angle positive from +Z toward +X
+    a, b = T0[:3, 2], T1[:3, 2]
+    ax = axes[0]
+    for v, color, lab in ((a, "#2c7fb8", "start"), (b, "#d4a017", "end")):
+        w = np.array([v[0], v[2]])
+        w = w / (np.linalg.norm(w) or 1.0)
+        ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
+        ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
+    a0 = math.atan2(a[2], a[0])
+    _arc(ax, a0, a0 - math.radians(conv["xz_plane_column2"]), 0.45, "#d7301f",
+         f"{conv['xz_plane_column2']:+.2f}°")
+    ax.set_xlabel("world X")
+    ax.set_ylabel("world Z (vertical)")
+    ax.set_title("(a) legacy: source camera column 2 on raw-world X-Z", fontsize=8, loc="left")
+    # (b) horizontal plane: optical forward projected orthogonal to up (world X-Y when up = +Z)
+    up = np.asarray(tracks.up)
+    e1 = np.cross(up, [0.0, 1.0, 0.0]) if abs(up[1]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
+    e1 = np.array([1.0, 0.0, 0.0]) if np.allclose(up, [0, 0, 1]) else e1 / np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    f0, f1 = np.array(o.evidence["heading"]["forward_t0"]), np.array(o.evidence["heading"]["forward_t1"])
+    ax = axes[1]
+    for v, color, lab in ((f0, "#2c7fb8", "start"), (f1, "#d4a017", "end")):
+        w = np.array([v @ e1, v @ e2])
+        w = w / (np.linalg.norm(w) or 1.0)
+        ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
+        ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
+    h0 = math.atan2(f0 @ e2, f0 @ e1)
+    _arc(ax, h0, h0 + math.radians(conv["gravity_heading"]), 0.45, "#08519c", f"{conv['gravity_heading']:+.2f}°")
+    ax.set_xlabel("horizontal axis 1 (world X)")
+    ax.set_ylabel("horizontal axis 2 (world Y)")
+    ax.set_title("(b) repair: optical forward on the gravity-horizontal plane", fontsize=8, loc="left")
+    for ax in axes:
+        ax.set_xlim(-1.35, 1.35)
+        ax.set_ylim(-1.35, 1.35)
+        ax.set_aspect("equal")
+        ax.axhline(0, color="#dddddd", lw=0.6, zorder=0)
+        ax.axvline(0, color="#dddddd", lw=0.6, zorder=0)
+    leg = d.get("legacy_deg")
+    fig.suptitle(f"{o.video}: {o.time_start:.3f} s to {o.time_end:.3f} s; legacy detail "
+                 f"{leg if leg is None else f'{leg:+.2f}°'}", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
+    plt.close(fig)
+    return path
+
+
+def figure_scatter(outcomes: list[Outcome], path: str | Path) -> Path | None:
+    """Legacy value against the repaired heading and against the X-Z operator, per source."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = diagnosis_table(outcomes).dropna(subset=["legacy_deg"])
+    if t.empty:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(8.0, 3.8), sharey=True)
+    colors = {"ScanNet": "#2c7fb8", "Waymo": "#d95f0e", "Omni6DPose": "#31a354"}
+    for ax, col, title in ((axes[0], "xz_plane_deg", "legacy operator (X-Z plane)"),
+                           (axes[1], "repaired_deg", "gravity-horizontal heading (repair)")):
+        for src, g in t.groupby("source"):
+            ax.scatter(g[col], g["legacy_deg"], s=12, color=colors.get(src, "k"), label=src, alpha=0.8)
+        ax.plot([-180, 180], [-180, 180], color="#999999", lw=0.8, ls="--")
+        ax.set_xlim(-180, 180)
+        ax.set_ylim(-180, 180)
+        ax.set_xlabel(f"{title} (°)")
+        ax.set_title(title, fontsize=8, loc="left")
+    axes[0].set_ylabel("legacy Answer Detail (°)")
+    axes[0].legend(fontsize=7, frameon=False)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
+    plt.close(fig)
+    return path
