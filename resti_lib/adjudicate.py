@@ -91,8 +91,9 @@ def answer_layer_defects(row: dict) -> tuple[list[str], dict]:
         keys.setdefault(v.key(), set()).add(" ".join(cands[k].split()))
     if any(len(texts) > 1 for texts in keys.values()):
         defects.append("duplicate_options_numeric")
-    if parsed and all(isinstance(v, V.Pose) for v in parsed.values()) and kv is not None:
-        same = [k for k, v in parsed.items() if k != row.get("Answer") and np.allclose(v.R, kv.R)]
+    if parsed and all(isinstance(v, V.Pose) for v in parsed.values()) and isinstance(detail, V.Pose):
+        # distractors (options that are not the detail's value) reusing the detail's rotation
+        same = [k for k, v in parsed.items() if v.key() != detail.key() and np.allclose(v.R, detail.R)]
         if same:
             defects.append("pose_identical_rotations")
             ev["identical_rotation_letters"] = sorted(same)
