@@ -77,6 +77,31 @@ def significant_attacks(run) -> list[dict]:
     return table[table["significant"]].to_dict("records")
 
 
+def centre_in_view(world: Path, segment: str, camera: int, oid: str, t0: float, t1: float | None = None,
+                   max_depth: float = 60.0) -> np.ndarray:
+    """Per track sample in ``[t0, t1]``: does the box centre project inside the camera image at a depth
+    in (0, max_depth]? An independent check (pinhole projection, numpy only) of the mini-world's
+    own visibility criterion."""
+    seg = WaymoSegment(world / "waymo", segment)
+    tr = seg.object_track(oid)
+    t1 = t0 if t1 is None else t1
+    sel = (tr.times >= t0 - 0.051) & (tr.times <= t1 + 0.051) if t1 == t0 else \
+        (tr.times >= t0 - 1e-3) & (tr.times <= t1 + 1e-3)
+    if t1 == t0 and sel.any():  # the nearest frame only
+        k = np.flatnonzero(sel)[np.argmin(np.abs(tr.times[sel] - t0))]
+        sel = np.zeros_like(sel)
+        sel[k] = True
+    cam = seg.camera_track(camera)
+    Tc, _ = G.pose_at(cam, tr.times[sel], "linear", 1e-6)
+    p = np.einsum("nji,nj->ni", Tc[:, :3, :3], tr.positions[sel] - Tc[:, :3, 3])  # R^T (x - c)
+    cal = seg.camera_calibration(camera)
+    k = cal["intrinsics"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = k["f_u"] * p[:, 0] / p[:, 2] + k["c_u"]
+        v = k["f_v"] * p[:, 1] / p[:, 2] + k["c_v"]
+    return (p[:, 2] > 0) & (p[:, 2] <= max_depth) & (u >= 0) & (u < cal["width"]) & (v >= 0) & (v < cal["height"])
+
+
 def unseen_subject_rows(run, man, world) -> set[int]:
     """Rows whose subject the generator took although the camera never sees it.
 
@@ -84,26 +109,37 @@ def unseen_subject_rows(run, man, world) -> set[int]:
     subject in view (ReSTI v5: out-of-frustum targets are excluded). Checked here independently:
     the manifest's object centre never projects into the camera image during the interval.
     """
-
     out = set()
     for o in run.outcomes:
         if o.reasons != ["not_visible_at_frame"] or o.source != "Waymo":
             continue
         m = man[o.row]
-        seg = WaymoSegment(world / "waymo", m["sequence"])
-        tr = seg.object_track(m["contract"]["entity"]["id"])
-        t0, t1 = m["contract"]["times"]
-        sel = (tr.times >= t0 - 1e-3) & (tr.times <= t1 + 1e-3)
-        cam = seg.camera_track(m["camera"])
-        Tc, _ = G.pose_at(cam, tr.times[sel], "linear", 1e-6)
-        p = np.einsum("nji,nj->ni", Tc[:, :3, :3], tr.positions[sel] - Tc[:, :3, 3])  # R^T (x - c)
-        cal = seg.camera_calibration(m["camera"])
-        k = cal["intrinsics"]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = k["f_u"] * p[:, 0] / p[:, 2] + k["c_u"]
-            v = k["f_v"] * p[:, 1] / p[:, 2] + k["c_v"]
-        inside = (p[:, 2] > 0) & (u >= 0) & (u < cal["width"]) & (v >= 0) & (v < cal["height"])
+        t0, t1 = m["contract"]["times"][0], m["contract"]["times"][-1]
+        inside = centre_in_view(world, m["sequence"], m["camera"], m["contract"]["entity"]["id"], t0, t1,
+                                max_depth=np.inf)
         assert not inside.any(), f"row {o.row}: the subject is in view, yet excluded"
+        assert m["expected_verdict"] != "excluded"
+        out.add(o.row)
+    return out
+
+
+def source_ambiguous_rows(run, man, world) -> set[int]:
+    """Waymo rows whose described object is not the only visible box of its class.
+
+    Waymo boxes carry a type, not a description; when another box of the same class is in view at
+    the asked frame (checked here independently, by the mini-world's own centre-in-view criterion)
+    and the legacy value cannot decide, the audit excludes the row as ``ambiguous_instance``.
+    """
+    out = set()
+    for o in run.outcomes:
+        if o.reasons != ["ambiguous_instance"] or o.source != "Waymo":
+            continue
+        m = man[o.row]
+        times = m["contract"]["times"]
+        cands = o.evidence["candidates"]
+        assert m["contract"]["entity"]["id"] in cands
+        for oid in cands:  # in view at the asked frame, or at some frame of the asked interval
+            assert centre_in_view(world, m["sequence"], m["camera"], oid, times[0], times[-1]).any(), (o.row, oid)
         assert m["expected_verdict"] != "excluded"
         out.add(o.row)
     return out

@@ -94,7 +94,8 @@ def test_tie_break_by_legacy_value():
     rule = Rule(abs_tol=0.0, rel_tol=0.0)
     k, ev = tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=True)
     assert k == 1 and ev["n_agreeing"] == 1
-    assert tie_break_by_legacy(["a", "b"], [4.0, 4.001], "4.00m", "m", rule, enabled=True)[0] is None
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True)[0] == 0  # both print 4.00
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True, decimals=3)[0] is None
     assert tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=False)[0] is None
 
 
@@ -118,7 +119,7 @@ def man(miniworld):
 
 
 def test_miniworld_defects_verdicts_values(disp_run, man, miniworld):
-    unseen = H.unseen_subject_rows(disp_run, man, miniworld)
+    unseen = H.unseen_subject_rows(disp_run, man, miniworld) | H.source_ambiguous_rows(disp_run, man, miniworld)
     assert len(unseen) <= 2
     assert [m for m in H.defect_mismatches(disp_run, man) if m[0] not in unseen] == []
     assert [m for m in H.verdict_mismatches(disp_run, man) if m[0] not in unseen] == []

@@ -213,8 +213,8 @@ def _dimension(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[floa
         ev.update({"t_frame": snap.evidence.get("t_frame"), "n_instances": len(cands),
                    "n_visible_instances": len(visible)})
         if not visible:
-            raise Excluded("not_visible_at_frame", "not_visible", label=label, t=t, n_instances=len(cands),
-                            visibility=[{"id": i.id, **v} for i, v in zip(cands, vis)], **ev)
+            raise Excluded("not_visible_at_frame", "not_visible", t=t,
+                           visibility=[{"id": i.id, **v} for i, v in zip(cands, vis)], **ev)
         pool = visible
         o.frames = {"t": t, "t_frame": snap.evidence.get("t_frame"),
                     "frame_timestamp_micros": snap.evidence.get("frame_timestamp_micros")}

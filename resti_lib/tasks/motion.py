@@ -131,36 +131,43 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
     if noun is None or not typed:
         raise Excluded("no_source_instance", "no_source_instance", **ev,
                        types_in_segment=view.labels())
+    min_motion = float(params.get("min_motion_m", 0.5))
+    tol = float(params.get("time_tol", 1e-3))
     cands, seen = [], []
     for inst in typed:
         tr = _track(view, inst.id)
         if not _covers(tr, t0, t1):
             continue
-        vis = visible_in_interval(view, tr, t0, t1)
-        seen.append({"id": inst.id, **vis})
-        if vis["n_visible"] == 0:
-            continue
         try:
-            path, _ = G.path_length(tr, t0, t1, tol=float(params.get("time_tol", 1e-3)), gaps="skip")
+            path, _ = G.path_length(tr, t0, t1, tol=tol, gaps="skip")
             value = float(value_fn(tr))
         except ContractError:
             continue
-        cands.append({"id": inst.id, "track": tr, "path_m": path, "value_si": value, **vis})
+        vis = visible_in_interval(view, tr, t0, t1)
+        seen.append({"id": inst.id, "path_m": round(path, 6), **vis})
+        if vis["n_visible"]:
+            cands.append({"id": inst.id, "track": tr, "path_m": path, "value_si": value, **vis})
     ev["n_covering_and_visible"] = len(cands)
+    if ph.motion == "static":
+        wanted = [c for c in cands if c["path_m"] < min_motion]
+        ev["motion_cue"] = "static"
+    elif presupposes_motion or ph.motion == "moving":
+        wanted = [c for c in cands if c["path_m"] >= min_motion]
+        ev["motion_cue"] = "moving (presupposed by the question)" if presupposes_motion else "moving"
+    else:
+        wanted = cands
+    if presupposes_motion and not wanted:
+        # the question needs a moving object: a static one in view is not its referent
+        moving_unseen = [s_ for s_ in seen if s_["path_m"] >= min_motion and not s_["n_visible"]]
+        reason = ("not_visible_at_frame", "not_visible") if moving_unseen else ("no_source_instance",
+                                                                                "no_source_instance")
+        raise Excluded(*reason, **ev, t=[t0, t1], camera=view.camera, covering_tracks=seen,
+                       note="no moving track of the described class is seen by the camera during the interval")
     if not cands:
         raise Excluded("not_visible_at_frame", "not_visible", **ev, t=[t0, t1], camera=view.camera,
                        covering_tracks=seen,
                        note="no track of the described class covers the interval and is seen by the camera")
-    min_motion = float(params.get("min_motion_m", 0.5))
-    if ph.motion == "static":
-        keep = [c for c in cands if c["path_m"] < min_motion]
-        ev["motion_cue"] = "static"
-    elif presupposes_motion or ph.motion == "moving":
-        keep = [c for c in cands if c["path_m"] >= min_motion]
-        ev["motion_cue"] = "moving (presupposed by the question)" if presupposes_motion else "moving"
-    else:
-        keep = cands
-    cands = keep or cands
+    cands = wanted or cands
     ev["n_after_motion_cue"] = len(cands)
     if len(cands) > 1:
         tb = params.get("legacy_tie_break", True)

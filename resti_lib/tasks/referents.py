@@ -20,8 +20,9 @@ Visibility (:func:`box_visibility`)
     A frustum test with the camera intrinsics (pinhole, distortion ignored, no occlusion): a
     3x3x3 grid of points spanning the solid box (corners, edge and face midpoints, centre) is
     moved into the OpenCV camera frame; a point is in view when its depth lies in
-    ``[near, far]`` and it projects inside the image. The box is visible when at least
-    ``min_fraction`` of the points are in view.
+    ``[near, far]`` and it projects inside the image. The box is visible when its centre is in view
+    or at least ``min_fraction`` of the points are (a large object close to the camera overflows the
+    image yet is plainly visible).
 
 Box geometry
     :func:`point_box_distance` (nearest point of a solid oriented box) and
@@ -73,10 +74,9 @@ CUT_WORDS = ("with", "near", "beside", "besides", "next", "by", "on", "in", "und
              "mounted", "riding", "driving", "walking", "that", "which", "who", "to", "for", "where",
              "while", "containing", "showing", "featuring", "topped", "stacked", "lying", "hanging")
 _CUT_RE = re.compile(r"\b(" + "|".join(CUT_WORDS) + r")\b|[,;(]", re.IGNORECASE)
-#: Markers of a group referent inside the head.
-GROUP_WORDS = ("pair of", "set of", "group of", "couple of", "row of", "stack of", "pile of", "both",
-               "two", "three", "four", "five", "six", "several", "multiple", "many", "some", "these",
-               "those", "all")
+#: Markers of a group referent inside the head. Number words are not markers on their own ("three-seat
+#: sofa"); "two chairs" is a group through its plural head noun.
+GROUP_WORDS = ("pair of", "set of", "group of", "couple of", "row of", "stack of", "pile of", "both")
 _GROUP_RE = re.compile(r"\b(" + "|".join(w.replace(" ", r"\s+") for w in GROUP_WORDS) + r")\b", re.IGNORECASE)
 _STATIC_RE = re.compile(r"\b(parked|stationary|stopped|standing still|idle)\b", re.IGNORECASE)
 _MOVING_RE = re.compile(r"\b(moving|driving|walking|running|riding|turning|crossing|passing|approaching)\b",
@@ -258,7 +258,8 @@ def box_points(box: OrientedBox, n: int = 3) -> np.ndarray:
 
 def box_visibility(box_cam: OrientedBox, intr: dict, *, near: float = 0.1, far: float = np.inf,
                    min_fraction: float = 0.5, n: int = 3) -> dict:
-    """Frustum test of a box given in the OpenCV camera frame (see module docstring).
+    """Frustum test of a box given in the OpenCV camera frame (see module docstring): visible when the
+    centre is in view or at least ``min_fraction`` of the grid points are.
 
     Returns ``{"visible", "fraction", "n_points", "n_in_view", "centre_in_view", "all_behind",
     "centre_depth_m"}``.
@@ -275,7 +276,7 @@ def box_visibility(box_cam: OrientedBox, intr: dict, *, near: float = 0.1, far: 
     cv = intr["fy"] * c[1] / cz + intr["cy"] if cz > 0 else np.nan
     centre_ok = bool(near <= cz <= far and 0 <= cu < intr["width"] and 0 <= cv < intr["height"])
     frac = float(ok.mean())
-    return {"visible": bool(frac >= min_fraction and ok.any()), "fraction": round(frac, 4),
+    return {"visible": bool(centre_ok or (frac >= min_fraction and ok.any())), "fraction": round(frac, 4),
             "n_points": int(P.shape[0]), "n_in_view": int(ok.sum()), "centre_in_view": centre_ok,
             "all_behind": bool((z < 0).all()), "centre_depth_m": float(cz)}
 

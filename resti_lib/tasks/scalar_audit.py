@@ -107,12 +107,13 @@ def agrees_si(detail: object, value_si: float, unit: str, rule: Rule) -> bool:
 
 
 def tie_break_by_legacy(ids: list[str], values_si: list[float], detail: object, unit: str, rule: Rule, *,
-                        enabled: bool) -> tuple[int | None, dict]:
+                        enabled: bool, decimals: int = 2) -> tuple[int | None, dict]:
     """Pick one of several candidate instances by the legacy value, when enabled.
 
     Returns ``(index or None, evidence)``: the index of the only candidate whose value agrees with
-    the legacy Answer Detail under ``rule``; None when no candidate or more than one agrees (or the
-    tie-break is disabled). The evidence lists every candidate's value.
+    the legacy Answer Detail under ``rule`` (or the first of several agreeing candidates whose
+    values print identically at ``decimals``: the answer is then unique although the instance is
+    not); None otherwise or when the tie-break is disabled. The evidence lists every candidate's value.
     """
     ev = {"candidate_values_si": {str(i): round(float(v), 6) for i, v in zip(ids, values_si)}}
     if not enabled:
@@ -120,6 +121,11 @@ def tie_break_by_legacy(ids: list[str], values_si: list[float], detail: object, 
     agree = [k for k, v in enumerate(values_si) if agrees_si(detail, v, unit, rule)]
     ev.update({"tie_break": "the legacy value agrees with exactly one candidate" if len(agree) == 1 else
                f"the legacy value agrees with {len(agree)} candidates", "n_agreeing": len(agree)})
+    if len(agree) > 1:
+        printed = {V.format_scalar(to_unit(values_si[k], unit), unit, decimals) for k in agree}
+        if len(printed) == 1:
+            ev["tie_break"] += f"; they all print {printed.pop()}: the answer is unique, the instance is not"
+            return agree[0], ev
     return (agree[0] if len(agree) == 1 else None), ev
 
 

@@ -11,8 +11,10 @@ Rate statistics (the rewritten question names one):
 A legacy question that says "average speed" without naming path or displacement leaves the
 statistic open (contract part ``statistic`` missing). Both values are computed; the legacy value
 is compared with each under the task's comparison rule. Per source, the statistic of the legacy
-construction is the one matched by the majority of rows that match exactly one of the two; a row
-matching only one keeps that one, a row matching both or neither takes its source's statistic.
+construction is the one matched by the majority of rows that match exactly one of the two, and
+every row of the source is read under it (a lone row agreeing with the other statistic is a chance
+agreement, noted in its evidence). Only in a *mixed* source (the minority has at least
+``mixed_share`` of those rows) does each row keep the statistic it matches.
 When that statistic is displacement / Δt (decided by the row itself or by a majority, not by the
 ``default_statistic`` fallback), the row carries ``statistic_unnamed`` and
 ``speed_is_displacement_over_time`` (the "average speed" is the magnitude of average velocity).
@@ -255,8 +257,12 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
     return outs
 
 
-def construction_statistic(pending: list[tuple], default: str) -> dict[str, dict]:
-    """Per source: the statistic of the legacy "average speed" rows (majority of the rows that match one)."""
+def construction_statistic(pending: list[tuple], default: str, mixed_share: float = 0.25) -> dict[str, dict]:
+    """Per source: the statistic of the legacy "average speed" rows (majority of the rows that match one).
+
+    A source is *mixed* when the minority statistic has at least ``mixed_share`` of the rows that
+    match exactly one; there each such row keeps its own statistic.
+    """
     out: dict[str, dict] = {}
     for o, _r, c, _s, _rr, match in pending:
         if "statistic" not in c["missing"]:
@@ -268,6 +274,8 @@ def construction_statistic(pending: list[tuple], default: str) -> dict[str, dict
                (False, False): "n_neither"}[(match["average_velocity"], match["average_speed"])]
         d[key] += 1
     for d in out.values():
+        lo, hi = sorted((d["n_velocity_only"], d["n_speed_only"]))
+        d["mixed"] = bool(hi and lo / (lo + hi) >= mixed_share)
         if d["n_velocity_only"] > d["n_speed_only"]:
             d["statistic"], d["decided_by"] = "average_velocity", "majority of discriminating rows"
         elif d["n_speed_only"] > d["n_velocity_only"]:
@@ -278,14 +286,20 @@ def construction_statistic(pending: list[tuple], default: str) -> dict[str, dict
 
 
 def _adjudicate_rates(pending: list[tuple], params: dict) -> None:
-    group = construction_statistic(pending, str(params.get("default_statistic", "average_velocity")))
+    group = construction_statistic(pending, str(params.get("default_statistic", "average_velocity")),
+                                   float(params.get("mixed_share", 0.25)))
     for o, r, c, subj, rr, match in pending:
         unnamed = "statistic" in c["missing"]
         if unnamed:
             g = group[o.source]
             own = [k for k, m in match.items() if m]
-            determined = len(own) == 1 or g["decided_by"].startswith("majority")
-            legacy_stat = own[0] if len(own) == 1 else g["statistic"]
+            determined = g["decided_by"].startswith("majority") or len(own) == 1
+            # one construction per source unless the source is mixed: then each row keeps its own match
+            legacy_stat = own[0] if (len(own) == 1 and (g["mixed"] or not g["decided_by"].startswith("majority"))) \
+                else g["statistic"]
+            if len(own) == 1 and legacy_stat != own[0]:
+                o.evidence["coincidence"] = (f"the legacy value also agrees with {own[0]}, a chance agreement in a "
+                                             f"source whose rows use {legacy_stat}")
             op = legacy_stat
             if legacy_stat == "average_velocity" and determined:
                 o.defects += ["statistic_unnamed", "speed_is_displacement_over_time"]
