@@ -130,7 +130,7 @@ def look_rotation(forward: np.ndarray, up: np.ndarray = _UP, roll: float = 0.0) 
 
 
 def quat_wxyz_from_matrix(R: np.ndarray) -> list[float]:
-    """Unit quaternion (w, x, y, z), w >= 0, from a rotation matrix (Shepperd's method)."""
+    """Unit quaternion (w, x, y, z), w >= 0, from a rotation matrix (largest-diagonal branch)."""
     R = np.asarray(R, dtype=np.float64)
     tr = R[0, 0] + R[1, 1] + R[2, 2]
     if tr > 0:

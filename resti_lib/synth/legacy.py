@@ -187,11 +187,6 @@ def _t(t: float) -> str:
     return s if s else "0"
 
 
-def _lc(desc: str) -> str:
-    """Description as a noun phrase inside a sentence ("the white door ...")."""
-    return desc[0].lower() + desc[1:] if desc and not desc[:2].isupper() else desc
-
-
 def _strip_article(desc: str) -> str:
     low = desc[0].lower() + desc[1:]
     for art in ("a ", "an ", "the "):
@@ -418,8 +413,11 @@ class Builder:
             cands = self.cached(
                 ("wm-unique-visible", s.name, slot.camera), lambda: _wm_unique_visible(s, slot.camera)
             )
+            if not cands:  # no object is the only visible one of its type: any visible object
+                vis = s.visible(slot.camera)
+                cands = [(i, int(k)) for i in range(len(s.objects)) for k in np.flatnonzero(vis[i])]
             if not cands:
-                raise NoCandidate("no uniquely visible object")
+                raise NoCandidate("no visible object")
             i, k = _choose(rng, cands)
             o = s.objects[i]
             t = float(s.t[k])
@@ -1078,6 +1076,9 @@ class Builder:
                     lat, dep = abs(ev["dx"]), abs(ev["dz"])
                     if rel == "Directly above" or max(lat, dep) >= 2.5 * min(lat, dep):
                         clear.append((a, b, rel))
+            if not clear:
+                a, b = s.clear_pair
+                clear = [(a, b, s.relation(a, b)[0])]
             above = [c for c in clear if c[2] == "Directly above"]
             a, b, truth = _choose(rng, above) if above and rng.random() < 0.3 else _choose(rng, clear)
             legacy = truth

@@ -113,6 +113,7 @@ class RopeScene:
     cam_world: np.ndarray
     objects: list[RopeObject]
     tied_pair: tuple[int, int]
+    clear_pair: tuple[int, int] = (0, 0)
     fps: float = FPS
     _vis: np.ndarray | None = None
 
@@ -211,6 +212,7 @@ class RopeScene:
             "fps": self.fps,
             "camera_pose_convention": convention,
             "tied_pair": list(self.tied_pair),
+            "clear_pair": list(self.clear_pair),
             "objects": [
                 {
                     "mask_id": o.mask_id,
@@ -280,16 +282,10 @@ def _tied_position(
     return None
 
 
-def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeScene:
-    """Build one ROPE scene (world model only)."""
-    rng = np.random.default_rng(seed)
-    n = int(round(duration * FPS))
-    cam = _camera(rng, n)
-    R0 = cam[0, :3, :3]
-    unique = [c for c in _CLASSES if "group" not in _CLASSES[c] and c not in ("box", "book")]
-    repeated = "mug" if rng.random() < 0.6 else "bottle"
-    chosen = list(rng.choice(unique, size=3, replace=False))
-    classes = chosen + [repeated, repeated] + (["box", "book"] if stacked else [])
+def _place_objects(
+    rng: np.random.Generator, R0: np.ndarray, classes: list[str], seed: int
+) -> list[RopeObject] | None:
+    """Objects on the table (object 1 tied with object 0 at frame 0); None when they do not fit."""
     objs: list[RopeObject] = []
     placed: list[tuple[np.ndarray, float]] = []
     counts: dict[str, int] = {}
@@ -303,31 +299,34 @@ def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeSce
         z = side[2] / 2
         on_top = None
         xy = None
-        if cls == "book" and stacked:
+        if cls == "book" and i == len(classes) - 1 and classes[i - 1] == "box":
             base = objs[-1]
             xy = base.T_world[:2, 3] + rng.uniform(-0.02, 0.02, size=2)
             z = base.side[2] + side[2] / 2
             on_top = base.mask_id
-        elif i == 1:
-            # tied with object 0 at frame 0: equal lateral and depth offsets in the camera frame
-            xy = _tied_position(rng, R0, objs[0], z, rad, placed)
-        if xy is None and i == 1:
-            raise RuntimeError(f"cannot place a tied pair in scene {name}")
-        if xy is None:
-            lim = 0.12 if i == 0 else 0.38
-            for _ in range(500):
+        elif i in (1, 2):
+            # object 1: tied with object 0 at frame 0 (equal lateral and depth offsets);
+            # object 2: clearly to the left or right of object 0
+            if i == 1:
+                xy = _tied_position(rng, R0, objs[0], z, rad, placed)
+            else:
+                xy = _clear_position(rng, R0, objs[0], rad, placed)
+            if xy is None:
+                return None
+        else:
+            lim = 0.12 if i == 0 else 0.42
+            for _ in range(300):
                 cand = rng.uniform(-lim, lim, size=2)
                 if _free(cand, rad, placed):
                     xy = cand
                     break
             else:
-                raise RuntimeError(f"cannot place {cls} on the table of scene {name}")
+                return None
         if on_top is None:
             placed.append((xy, rad))
         k = counts.get(cls, 0)
         counts[cls] = k + 1
         descs = spec["desc"]
-        T = make_T(rot_z(yaw), [xy[0], xy[1], z])
         objs.append(
             RopeObject(
                 mask_id=i + 1,
@@ -336,11 +335,58 @@ def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeSce
                 description=str(descs[k % len(descs)]),
                 scale=scale,
                 dims=dims,
-                T_world=T,
+                T_world=make_T(rot_z(yaw), [xy[0], xy[1], z]),
                 on_top_of=on_top,
             )
         )
-    return RopeScene(name=name, cam_world=cam, objects=objs, tied_pair=(objs[1].mask_id, objs[0].mask_id))
+    return objs
+
+
+def _clear_position(
+    rng: np.random.Generator,
+    R0: np.ndarray,
+    base: RopeObject,
+    rad: float,
+    placed: list[tuple[np.ndarray, float]],
+) -> np.ndarray | None:
+    """A table position beside ``base`` along the camera's horizontal x axis at frame 0 (a clear
+    Left/Right relation: the lateral offset is at least 3x the depth offset)."""
+    ex = R0[:, 0].copy()
+    ex[2] = 0.0
+    ex /= np.linalg.norm(ex)
+    r0 = 0.5 * float(np.linalg.norm(base.side[:2]))
+    for _ in range(200):
+        s = rng.uniform(r0 + rad + 0.05, r0 + rad + 0.15) * rng.choice([-1, 1])
+        cand = base.T_world[:2, 3] + s * ex[:2]
+        if _free(cand, rad, placed):
+            return cand
+    return None
+
+
+def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeScene:
+    """Build one ROPE scene (world model only): camera orbit, then objects that fit the table."""
+    rng = np.random.default_rng(seed)
+    n = int(round(duration * FPS))
+    cam = _camera(rng, n)
+    unique = [c for c in _CLASSES if "group" not in _CLASSES[c] and c not in ("box", "book")]
+    for _ in range(200):
+        repeated = "mug" if rng.random() < 0.6 else "bottle"
+        chosen = [str(c) for c in rng.choice(unique, size=3, replace=False)]
+        classes = chosen + [repeated, repeated] + (["box", "book"] if stacked else [])
+        objs = _place_objects(rng, cam[0, :3, :3], classes, seed)
+        if objs is None:
+            continue
+        scene = RopeScene(
+            name=name,
+            cam_world=cam,
+            objects=objs,
+            tied_pair=(objs[1].mask_id, objs[0].mask_id),
+            clear_pair=(objs[2].mask_id, objs[0].mask_id),
+        )
+        rel, ev = scene.relation(*scene.clear_pair)
+        if scene.visible()[:3, 0].all() and rel in ("Left", "Right") and abs(ev["dx"]) >= 3 * abs(ev["dz"]):
+            return scene
+    raise RuntimeError(f"cannot lay out the table of scene {name}")
 
 
 # ================================================================================== writing

@@ -65,7 +65,18 @@ _KINDS = {
     "bus": (1, (12.0, 2.6, 3.2), ["A yellow school bus"]),
     "pedestrian": (2, (0.6, 0.6, 1.75), ["A pedestrian in a red jacket", "A pedestrian carrying a backpack"]),
     "cyclist": (4, (1.8, 0.7, 1.7), ["A cyclist wearing a yellow helmet"]),
-    "sign": (3, (0.1, 0.8, 2.6), ["A red octagonal stop sign"]),
+    "sign": (
+        3,
+        (0.1, 0.8, 2.6),
+        [
+            "A red octagonal stop sign",
+            "A yellow diamond warning sign",
+            "A blue parking sign on a pole",
+            "A white speed-limit sign",
+            "A green street-name sign",
+            "An orange road-work sign",
+        ],
+    ),
 }
 #: Descriptions of objects that never appear in a segment (no source instance).
 ABSENT_DESCRIPTIONS = [
@@ -361,7 +372,9 @@ def _object_id(rng: np.random.Generator) -> str:
     return "".join(_B64[i] for i in rng.integers(0, 64, size=22))
 
 
-def _make_objects(rng: np.random.Generator, ego: _Ego) -> list[TrackedObject]:
+def _make_objects(rng: np.random.Generator, ego: _Ego, E: dict[int, np.ndarray]) -> list[TrackedObject]:
+    """Parked and moving vehicles, pedestrians, a cyclist and signs along the route; every camera
+    gets one sign placed in its view at some time, so every camera video sees an object."""
     objs: list[TrackedObject] = []
     used_desc: set[str] = set()
 
@@ -439,6 +452,16 @@ def _make_objects(rng: np.random.Generator, ego: _Ego) -> list[TrackedObject]:
     # a stop sign
     q, dd = ego.pos_dir(rng.uniform(4.0, 12.0))
     add("sign", q + rng.uniform(6.0, 8.0) * left(dd) * rng.choice([-1, 1]) + 15 * dd, -dd, 0.0, 0.0, False)
+    for cam in sorted(E):
+        tc = rng.uniform(2.0, 15.0)
+        T = ego.pose(tc)[0] @ E[cam]
+        axis = T[:3, 0].copy()
+        axis[2] = 0.0
+        axis /= np.linalg.norm(axis)
+        side = left(axis) * rng.uniform(3.0, 5.0) * rng.choice([-1, 1])
+        dist = rng.uniform(14.0, 22.0) if cam in (1, 2, 3) else rng.uniform(8.0, 12.0)
+        ground = np.array([0.0, 0.0, float(ego.interp(ego.z, tc)) - T[2, 3]])
+        add("sign", T[:3, 3] + dist * axis + side + ground, -axis, 0.0, 0.0, False)
     return objs
 
 
@@ -478,7 +501,7 @@ def build_segment(seed: int, n_turns: int) -> tuple[WaymoSegment, _Ego]:
             w,
             h,
         )
-    objects = _make_objects(rng, ego)
+    objects = _make_objects(rng, ego, E)
     for o in objects:
         pw = o.position(t)
         dist = np.linalg.norm(pw[:, :2] - W[:, :2, 3], axis=1)
