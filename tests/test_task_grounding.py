@@ -197,9 +197,10 @@ def test_heading_summary_convention():
     ("the pair of trash cans", "trash can", True),
     ("both chairs along the wall", "chair", True),
     ("Black upright piano against the wall", None, False),
+    ("Black tv stand under the television", "tv stand", False),
 ])
 def test_resolve_description(desc, label, grouped):
-    vocab = {w: [w] for w in ("door", "trash can", "chair", "armchair", "wall", "table")}
+    vocab = {w: [w] for w in ("door", "trash can", "chair", "armchair", "wall", "table", "tv stand", "stand")}
     r = G.resolve_description(desc, vocab, G.DEFAULTS["group_words"])
     assert (r.label, r.grouped) == (label, grouped)
 
@@ -211,6 +212,9 @@ def test_resolve_waymo_nouns():
     r = G.resolve_description("A pedestrian carrying a backpack", words, G.DEFAULTS["group_words"])
     assert r.label == "TYPE_PEDESTRIAN" and not r.finer_than_label
     assert G.resolve_description("A horse-drawn carriage", words, G.DEFAULTS["group_words"]).label is None
+    # the head noun is the last match: a modifier naming another type does not win
+    r = G.resolve_description("the yellow pedestrian-crossing sign", words, G.DEFAULTS["group_words"])
+    assert r.label == "TYPE_SIGN" and r.word == "sign"
 
 
 def _inst(i, hyp, shifted=None):
@@ -251,8 +255,7 @@ def mini(miniworld, tmp_path_factory):
     from resti_lib import paths
 
     p = yaml.safe_load((paths.PARAMS / "grounding.yaml").read_text())
-    for k in ("figure_dir", "alpha"):
-        p.pop(k)
+    p.pop("alpha")
     return run_on_miniworld(TASK, miniworld, tmp_path_factory.mktemp("grounding_out"), **p)
 
 

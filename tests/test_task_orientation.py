@@ -121,8 +121,7 @@ def mini(miniworld, tmp_path_factory):
     from resti_lib import paths
 
     p = yaml.safe_load((paths.PARAMS / "orientation.yaml").read_text())
-    for k in ("figure_dir", "alpha"):
-        p.pop(k)
+    p.pop("alpha")
     return run_on_miniworld(TASK, miniworld, tmp_path_factory.mktemp("orientation_out"), **p)
 
 

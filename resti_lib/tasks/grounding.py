@@ -364,9 +364,10 @@ def resolve_description(description: str, vocabulary: dict[str, list[str]], grou
         first one naming the type itself and the others finer classes the boxes do not record).
     group_words : quantifiers that make the description a group ("pair of", "both", "two" ...).
 
-    The longest matching word wins (``tv stand`` over ``stand``), then the last one in the head
-    (``office chair`` -> ``chair``). A plural of a label word in the head, or a quantifier at the
-    start, makes the referent a group.
+    The head noun is the match that ends last in the head phrase (``pedestrian-crossing sign`` ->
+    ``sign``, ``office chair`` -> ``chair``); among matches ending there the longest wins (``tv stand``
+    over ``stand``). A plural of a label word in the head, or a quantifier at the start, makes the
+    referent a group.
     """
     text = _norm(description)
     text = re.sub(r"^(?:the|a|an)\s+", "", text)
@@ -382,7 +383,7 @@ def resolve_description(description: str, vocabulary: dict[str, list[str]], grou
         for w in words:
             for plural in (False, True):
                 for m in _word_rx(w, plural).finditer(head):
-                    cand = (len(_norm(w)), m.start(), label, w, plural)
+                    cand = (m.end(), len(_norm(w)), label, w, plural)
                     if best is None or cand[:2] > best[:2]:
                         best = cand
     if best is None and grouped_by:
@@ -393,7 +394,7 @@ def resolve_description(description: str, vocabulary: dict[str, list[str]], grou
                 for plural in (True, False):
                     m = _word_rx(w, plural).search(full)
                     if m:
-                        cand = (len(_norm(w)), m.start(), label, w, plural)
+                        cand = (-m.start(), len(_norm(w)), label, w, plural)
                         if best is None or cand[:2] > best[:2]:
                             best = cand
     label = best[2] if best else None

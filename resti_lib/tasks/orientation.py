@@ -376,7 +376,7 @@ def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = N
         ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
         ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
     a0 = math.atan2(a[2], a[0])
-    _arc(ax, a0, a0 - math.radians(conv["xz_plane_column2"]), 0.45, "#d7301f",
+    _arc(ax, a0, a0 - math.radians(conv["xz_plane_column2"]), 0.6, "#d7301f",
          f"{conv['xz_plane_column2']:+.2f}°")
     ax.set_xlabel("world X")
     ax.set_ylabel("world Z (vertical)")
@@ -394,7 +394,7 @@ def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = N
         ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
         ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
     h0 = math.atan2(f0 @ e2, f0 @ e1)
-    _arc(ax, h0, h0 + math.radians(conv["gravity_heading"]), 0.45, "#08519c", f"{conv['gravity_heading']:+.2f}°")
+    _arc(ax, h0, h0 + math.radians(conv["gravity_heading"]), 0.6, "#08519c", f"{conv['gravity_heading']:+.2f}°")
     ax.set_xlabel("horizontal axis 1 (world X)")
     ax.set_ylabel("horizontal axis 2 (world Y)")
     ax.set_title("(b) repair: optical forward on the gravity-horizontal plane", fontsize=8, loc="left")
