@@ -143,3 +143,17 @@ def source_ambiguous_rows(run, man, world) -> set[int]:
         assert m["expected_verdict"] != "excluded"
         out.add(o.row)
     return out
+
+
+def structural_failures(run) -> list[tuple]:
+    """Accepted rows failing a structural check of ``resti verify`` (five distinct valid options, key == detail ...)."""
+    from resti_lib.options.checks import ROW_CHECKS, parse_row
+
+    out = []
+    for r in run.result.accepted:
+        p = parse_row(r, r["ReSTI ID"])
+        for name, fn in ROW_CHECKS.items():
+            msg = fn(p)
+            if msg:
+                out.append((r["ReSTI ID"], name, msg))
+    return out

@@ -101,6 +101,20 @@ def test_waymo_noun_classes():
     assert typ == "TYPE_VEHICLE" and not R.size_fits([12.0, 2.6, 3.2], rng)  # a school bus is too low
 
 
+def test_unsupported_questions_get_specific_reasons():
+    from resti_lib.tasks.base import Outcome
+    from resti_lib.tasks.dimensional import _unsupported
+
+    def reasons(q):
+        o = _unsupported(Outcome(0, "k", TASK, "ScanNet", "v", 0, "retained"), {"Question": q})
+        return o.reasons, o.defects
+
+    assert reasons("What is the diameter of the white bowl?") == (["undefined_dimension"], [])
+    assert reasons("What is the distance between the two black chairs?") == (["grouped_referent"],
+                                                                                 ["grouped_referent"])
+    assert reasons("What color is the sofa?") == (["unsupported_question"], [])
+
+
 # ------------------------------------------------------------------- resti measure operators
 
 
@@ -224,5 +238,6 @@ def test_miniworld_rewritten_questions_state_the_contract(dim_run):
             assert q.startswith("At t=")
 
 
-def test_miniworld_no_significant_attack(dim_run):
+def test_miniworld_no_significant_attack_and_valid_options(dim_run):
     assert H.significant_attacks(dim_run) == []
+    assert H.structural_failures(dim_run) == []

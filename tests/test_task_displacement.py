@@ -68,6 +68,7 @@ def test_trailing_invalid_pose_shortens_the_interval(hand):
     o = hand[1]
     assert o.answer.value == pytest.approx(1.0) and o.evidence["geometry"]["shortened_to"] == pytest.approx(1 / 30)
     assert o.time_end == pytest.approx(1 / 30) and "t=0.033333 s" in o.question
+    assert o.frames["frames"] == [0, 1] and o.frames["shortened_to"] == pytest.approx(1 / 30)
 
 
 def test_zero_length_and_value_mismatch(hand):
@@ -80,6 +81,7 @@ def test_waymo_object_track_by_description(hand):
     assert o.verdict == "retained" and o.answer.value == pytest.approx(4.0)  # 10 m/s for 0.4 s
     assert o.contract["entity"]["id"] == "obj-a" and o.contract["operator"] == "path_length"
     assert o.evidence["visible_samples"] >= 1 and "box centre" in o.question
+    assert o.frames["frame_timestamp_micros"] == [1_552_440_195_362_591, 1_552_440_195_762_591]
 
 
 def test_ambiguous_subject_and_no_source(hand):
@@ -138,5 +140,6 @@ def test_miniworld_exclusions_and_questions(disp_run):
     assert json.loads(disp_run.result.provenance["contract"].iloc[0])["operator"] in D.WORDING
 
 
-def test_miniworld_no_significant_attack(disp_run):
+def test_miniworld_no_significant_attack_and_valid_options(disp_run):
     assert H.significant_attacks(disp_run) == []
+    assert H.structural_failures(disp_run) == []

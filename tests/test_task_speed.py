@@ -165,5 +165,6 @@ def test_miniworld_exclusions_and_questions(speed_run):
         assert "(unit: m/s" in q and ("divided by elapsed time" in q)
 
 
-def test_miniworld_no_significant_attack(speed_run):
+def test_miniworld_no_significant_attack_and_valid_options(speed_run):
     assert H.significant_attacks(speed_run) == []
+    assert H.structural_failures(speed_run) == []

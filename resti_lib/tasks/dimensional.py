@@ -29,6 +29,7 @@ them) or ``not_visible_at_frame`` (visibility per candidate, frame).
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pandas as pd
@@ -333,6 +334,28 @@ def _other_convention(op: str, c: dict, ev: dict, detail, unit: str, rule) -> st
     return None
 
 
+_OTHER_DIMS = re.compile(r"\b(diameter|radius|depth|thickness|volume|circumference|perimeter|area|size)\b",
+                         re.IGNORECASE)
+_BETWEEN = re.compile(r"\bbetween\s+(.+?)\?", re.IGNORECASE)
+
+
+def _unsupported(o: Outcome, r: dict) -> Outcome:
+    """Exclude a question no operator of the task reads, with the most specific reason."""
+    q = " ".join(str(r.get("Question") or "").split())
+    m = _OTHER_DIMS.search(q)
+    if m:
+        return o.exclude("undefined_dimension", asked=m.group(1).lower(), question=q,
+                         note="only length, width and height have a box convention")
+    b = _BETWEEN.search(q)
+    if b and "distance" in q.lower():
+        ph = read_phrase(b.group(1))
+        words = ph.head.split()
+        if ph.grouped or (words and words[-1].endswith("s")):
+            o.defects.append("grouped_referent")
+            return o.exclude("grouped_referent", phrase=b.group(1), marker=ph.grouped or f"plural: {words[-1]}")
+    return o.exclude("unsupported_question", question=q)
+
+
 def _question(c: dict, source: str, unit: str, t: float) -> str:
     op = c["operator"]
     if op == "dimension":
@@ -359,10 +382,7 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
         outs.append(o)
         op = c["operator"]
         if op not in ("dimension", "distance_to_camera", "object_distance"):
-            o.exclude("unsupported_question", question=r.get("Question"))
-            continue
-        if op == "dimension" and c["params"].get("dimension") not in DIMS:
-            o.exclude("undefined_dimension", asked=c["params"].get("dimension"))
+            _unsupported(o, r)
             continue
         video = str(r["Video"])
         if video not in views:

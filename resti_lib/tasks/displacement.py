@@ -32,7 +32,7 @@ from ..contract import parse_question
 from ..errors import ContractError
 from ..geometry import trajectory as G
 from .base import AnswerSpec, Outcome
-from .motion import ambiguous_subject, camera_subject, waymo_object_subject
+from .motion import ambiguous_subject, camera_subject, source_frames, waymo_object_subject
 from .referents import SceneView
 from .scalar_audit import (
     Excluded,
@@ -143,8 +143,8 @@ def audit_row(r: dict, ctx, params: dict, views: dict) -> Outcome:
     o.contract.update({"entity": {**ent, **subj.entity}, "times": [t0, t1_used], "unit": UNIT, "unit_stated": True,
                        "frame": subj.track.name, "missing": []})
     o.source_files = list(subj.files)
-    o.frames = {"t0": t0, "t1": t1_used, "indices_t0": gev.get("indices_t0") or gev.get("interior_index_range"),
-                "shortened_to": gev.get("shortened_to")}
+    o.frames = source_frames(subj.track, t0, t1_used, **({"shortened_to": gev["shortened_to"]}
+                                                       if gev.get("shortened_to") is not None else {}))
     o.transform_chain = subj.evidence.get("transform_chain", "")
     o.question = question_text(op, _subject_phrase(subj, ent.get("description")), t0, t1_used)
     o.prompt = r.get("Prompt") or ""

@@ -45,7 +45,7 @@ from .referents import (
 )
 from .scalar_audit import Excluded, tie_break_by_legacy
 
-__all__ = ["Subject", "ambiguous_subject", "camera_subject", "waymo_object_subject"]
+__all__ = ["Subject", "ambiguous_subject", "camera_subject", "source_frames", "waymo_object_subject"]
 
 SUBJECT_TEXT = {"ScanNet": "camera", "Waymo": "camera", "Omni6DPose": "camera"}
 
@@ -56,6 +56,18 @@ class Subject:
     def __init__(self, kind: str, track: PoseTrack, text: str, evidence: dict, entity: dict, files: list):
         self.kind, self.track, self.text, self.evidence, self.entity, self.files = (kind, track, text, evidence,
                                                                                      entity, files)
+
+
+def source_frames(track: PoseTrack, t0: float, t1: float, **extra) -> dict:
+    """Provenance of an interval: the asked times and the source frames nearest to them (ScanNet /
+    ROPE frame numbers, Waymo frame timestamps in µs)."""
+    idx = [int(np.argmin(np.abs(track.times - t))) for t in (t0, t1)]
+    out = {"t0": float(t0), "t1": float(t1), "sample_indices": idx, **extra}
+    if "frames" in track.meta:
+        out["frames"] = [int(track.meta["frames"][i]) for i in idx]
+    if "micros" in track.meta:
+        out["frame_timestamp_micros"] = [int(track.meta["micros"][i]) for i in idx]
+    return out
 
 
 def camera_subject(view: SceneView) -> Subject:

@@ -40,7 +40,7 @@ from ..contract import parse_question
 from ..errors import ContractError
 from ..geometry import trajectory as G
 from .base import AnswerSpec, Outcome
-from .motion import ambiguous_subject, camera_subject, waymo_object_subject
+from .motion import ambiguous_subject, camera_subject, source_frames, waymo_object_subject
 from .referents import SceneView
 from .scalar_audit import (
     Excluded,
@@ -182,7 +182,7 @@ def _finish(o: Outcome, r: dict, op: str, subj, value: float, unit: str, t0: flo
                        "unit_stated": True, "frame": subj.track.name, "missing": []})
     o.contract["params"]["statistic"] = STATISTICS.get(op, estimator)
     o.source_files = list(subj.files)
-    o.frames = {"t0": t0, "t1": t1}
+    o.frames = source_frames(subj.track, t0, t1)
     o.transform_chain = subj.evidence.get("transform_chain", "")
     o.question = question_text(op, _subject_text(subj, ent.get("description")), t0, t1, estimator)
     o.prompt = r.get("Prompt") or ""
