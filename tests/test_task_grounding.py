@@ -47,9 +47,10 @@ def _corners(center, size):
     return np.asarray(center) + s * np.asarray(size)
 
 
-def write_hand_scene(root, scene="scene0990_00", objects=None):
-    """Scene meta, one exported pose (frame 0) and instances given as ann-frame boxes."""
+def write_hand_scene(root, scene="scene0990_00", objects=None, poses=None):
+    """Scene meta, exported poses (frame 0 = ``P_HAND``) and instances given as ann-frame boxes."""
     objects = objects or [("table", (3.0, 1.0, 0.5), (2.0, 1.0, 1.0))]
+    poses = poses or [P_HAND]
     d = root / scene
     (d / "pose").mkdir(parents=True)
     A_inv = np.linalg.inv(A_HAND)
@@ -69,7 +70,8 @@ def write_hand_scene(root, scene="scene0990_00", objects=None):
     meta = {"axisAlignment": " ".join(f"{x:g}" for x in A_HAND.ravel()), "colorWidth": 1296, "colorHeight": 968,
             "fx_color": 1170.0, "fy_color": 1170.0, "mx_color": 648.0, "my_color": 484.0}
     (d / f"{scene}.txt").write_text("".join(f"{k} = {v}\n" for k, v in meta.items()))
-    (d / "pose" / "0.txt").write_text("\n".join(" ".join(f"{x:.9g}" for x in r) for r in P_HAND) + "\n")
+    for k, P in enumerate(poses):
+        (d / "pose" / f"{k}.txt").write_text("\n".join(" ".join(f"{x:.9g}" for x in r) for r in P) + "\n")
     return root
 
 
@@ -102,6 +104,56 @@ def test_box_in_camera_operator_is_the_same_computation(tmp_path):
     bad = evaluate_contract({"source": "ScanNet", "sequence": "scene0990_00", "entity": {"kind": "object", "id": 7},
                              "times": [0.0], "operator": "box_in_camera"}, {"scannet_root": str(root)})
     assert "error" in bad and "objectId 7" in bad["error"]
+
+
+def _legacy_row(question, detail, *, t=0.0, row=0, video="scene0990_00.mp4"):
+    cands = {L: detail for L in "ABCDE"}
+    return {"Video": video, "Source": "ScanNet", "Task": TASK, "QType": "Single Choice", "Question": question,
+            "Prompt": "", "time_start": t, "time_end": t, "Candidates": cands, "Answer": "A", "Answer Detail": detail,
+            "ID": row, "scene": "indoor", "row": row, "Legacy Row Key": f"k{row}"}
+
+
+def _legacy_box(c):
+    return V.format_legacy_box(c, (2.0, 1.0, 1.0), 0.0)
+
+
+def test_audit_rows_on_the_hand_scene(tmp_path):
+    from resti_lib.sources.context import SourceContext
+
+    away = P_HAND.copy()
+    away[:3, :3] = np.diag([-1.0, -1.0, 1.0]) @ R_CAM  # turned 180 deg about up: the table is behind
+    objects = [("table", (3.0, 1.0, 0.5), (2.0, 1.0, 1.0)), ("chair", (3.0, 2.5, 0.5), (0.5, 0.5, 1.0)),
+               ("chair", (4.5, 2.9, 0.5), (0.5, 0.5, 1.0))]  # chairs in the camera: (-0.5, 0, 2), (-0.9, 0, 3.5)
+    root = write_hand_scene(tmp_path / "scans", objects=objects, poses=[P_HAND, away])
+    ctx = SourceContext(scannet_root=root)
+    p = G.task_params({})
+    q = "Locate the 3D bounding box of the {}."
+    # alignment omitted: corrected, the answer is the hand value
+    o = G.audit_row(_legacy_row(q.format("brown wooden table"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    assert o.verdict == "corrected" and "grounding_alignment_omitted" in o.defects and "unnamed_frame" in o.defects
+    np.testing.assert_allclose(o.answer.value["center"], C_CAM_HAND, atol=1e-9)
+    assert o.question.startswith("At 0 seconds (zero-based source frame 0 at 30 FPS), what is")
+    # the correct chain: re-contracted (heading convention unstated, full rotation added), no source defect
+    o = G.audit_row(_legacy_row(q.format("table at 0s"), _legacy_box(C_CAM_HAND)), ctx, p)
+    assert o.verdict == "re-contracted" and "grounding_alignment_omitted" not in o.defects
+    assert "unnamed_frame" not in o.defects and o.evidence["diagnosis"]["winner"] == "correct"
+    # a centre no hypothesis reproduces: corrected with value_mismatch
+    o = G.audit_row(_legacy_row(q.format("table"), _legacy_box((0.3, 0.3, 0.3))), ctx, p)
+    assert o.verdict == "corrected" and "value_mismatch" in o.defects
+    # exclusions with their evidence
+    o = G.audit_row(_legacy_row(q.format("black upright piano"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    assert o.reasons == ["no_source_instance"] and "no_source_instance" in o.defects
+    assert o.evidence["source_labels"] == ["chair", "table"]
+    o = G.audit_row(_legacy_row(q.format("two wooden tables"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    assert o.reasons == ["grouped_referent"]
+    o = G.audit_row(_legacy_row(q.format("table"), _legacy_box(C_LEGACY_HAND), t=1 / 30), ctx, p)
+    assert o.reasons == ["not_visible_at_frame"] and o.evidence["n_candidates"] == 1
+    assert o.evidence["n_visible_instances"] == 0
+    chair = G.scannet_view(ScanNetScene(root, "scene0990_00"), 0.0, p).instances[2]
+    o = G.audit_row(_legacy_row(q.format("grey chair"), _legacy_box(chair.hypotheses["alignment_omitted"])), ctx, p)
+    assert o.reasons == ["ambiguous_instance"] and o.evidence["n_visible_instances"] == 2
+    assert o.evidence["diagnosis"]["legacy_points_at"] == "2" and "grounding_alignment_omitted" in o.defects
+    assert o.evidence["value_spread_m"] == pytest.approx(math.hypot(0.4, 1.5), abs=1e-6)
 
 
 # ------------------------------------------------------------------------------ a hand-made Waymo segment
@@ -320,6 +372,7 @@ def test_questions_state_the_contract(mini):
         assert c.time_stated and not c.missing, (o.row, c.missing)
         assert c.times[0] == pytest.approx(o.time_start, abs=1e-6)
         assert "(+X right, +Y down, +Z forward)" in o.question and "C_rotation_camera_from_box" in o.question
+        assert " of the " in o.question and " the A " not in o.question and " the a " not in o.question
 
 
 def test_no_significant_option_only_attack(mini):

@@ -26,10 +26,15 @@ For each legacy row: the description's head noun selects source labels; the inst
 label visible at the asked frame (frustum test with the intrinsics) are the candidates; competing
 hypotheses for the printed legacy centre are evaluated on them (correct chain, alignment omitted,
 alignment inverted, pose not inverted, annotation/raw/world frame, Waymo camera axes, neighbouring
-frames) and the residuals are kept as evidence. When several candidates remain the row is
-excluded (``ambiguous_instance``), but the legacy centre under each hypothesis still identifies the
-instance the legacy value was built from, so the source-layer defect is diagnosed on those rows
-too.
+frames) and the residuals are kept as evidence.
+
+When several visible instances carry the matched label the description does not identify one
+object and the row is excluded (``ambiguous_instance``), except where the source labels are
+coarser than any description (Waymo's four box types): there the legacy centre, when a hypothesis
+reproduces it for exactly one visible candidate, links the description to that box. On excluded
+rows the legacy centre still identifies the instance the legacy value was built from, so the
+source-layer defect is diagnosed there too. No matching label: ``no_source_instance``; a plural or
+quantifier: ``grouped_referent``; no candidate in view: ``not_visible_at_frame``.
 """
 
 from __future__ import annotations
@@ -708,10 +713,12 @@ def _t_text(t: float) -> str:
 
 
 def _noun_phrase(desc: str) -> str:
-    d = " ".join(str(desc).split()).rstrip(".")
-    low = d[:1].lower() + d[1:] if d[:2] != d[:2].upper() else d
-    low = re.sub(r"^(?:a|an|the)\s+", "", low)
-    return "the " + low
+    """``"A white utility truck"`` -> ``"the white utility truck"``; acronyms keep their case."""
+    d = re.sub(r"^(?:a|an|the)\s+", "", " ".join(str(desc).split()).rstrip("."), flags=re.IGNORECASE)
+    first = d.split(" ", 1)[0]
+    if not (len(first) > 1 and first.isupper()):
+        d = d[:1].lower() + d[1:]
+    return "the " + d
 
 
 def rewrite_question(source: str, description: str, view: FrameView) -> str:
@@ -800,6 +807,7 @@ def audit_row(row: dict, ctx: SourceContext, p: dict) -> Outcome:
                                         "legacy_to_nearest_object_m": near_d})
     contract["entity"] = {**contract.get("entity", {}), "description": desc, "label": ref.label}
     contract["times"] = [view.t]
+    contract["time_stated"] = True
     contract["frame"] = "OpenCV camera (+X right, +Y down, +Z forward)"
     contract["params"] = {**contract.get("params", {}), **{k: v for k, v in view.frame.items() if k != "t"}}
     if ref.grouped:
