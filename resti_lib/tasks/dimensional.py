@@ -203,6 +203,7 @@ def _spread(values: list[float]) -> float:
 
 
 def _dimension(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, dict]:
+    """The asked edge length (m) of the one instance the description names; raises Excluded."""
     which = c["params"].get("dimension")
     desc = c["entity"].get("description")
     t = float(c["times"][0])
@@ -253,6 +254,7 @@ def _dimension(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[floa
 
 
 def _distance(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, dict]:
+    """Camera-to-box distance (m) at the asked time of the one visible instance named; raises Excluded."""
     desc = c["entity"].get("description")
     t = float(c["times"][0])
     _ph, label, pred, mev = _resolve_label(view, desc)
@@ -285,6 +287,7 @@ def _distance(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float
 
 
 def _pair(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, dict]:
+    """Box-to-box minimum distance (m) of the two instances named; raises Excluded."""
     descs = list(c["entity"].get("descriptions") or [])
     t = float(c["times"][0])
     pools, evs = [], []
@@ -409,7 +412,7 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
             o.defects.append("value_mismatch")
         o.evidence.update({"operator": op, "value_si": value, "comparison": cmp_, **ev})
         o.contract.update({"unit": unit, "unit_stated": True, "times": [t]})
-        o.contract["missing"] = []
+        o.contract["legacy_missing"], o.contract["missing"] = list(o.contract["missing"]), []
         o.question = _question(c, o.source, unit, t)
         o.prompt = r.get("Prompt") or ""
         if op == "distance_to_camera":

@@ -141,7 +141,8 @@ def audit_row(r: dict, ctx, params: dict, views: dict) -> Outcome:
     o.evidence.update({"operator": op, "value_si": value, "comparison": cmp_, "geometry": gev,
                        "other_operator": {other: alt}, **subj.evidence})
     o.contract.update({"entity": {**ent, **subj.entity}, "times": [t0, t1_used], "unit": UNIT, "unit_stated": True,
-                       "frame": subj.track.name, "missing": []})
+                       "frame": subj.track.name, "missing": [],
+                       "legacy_missing": list(o.contract.get("missing", []))})
     o.source_files = list(subj.files)
     o.frames = source_frames(subj.track, t0, t1_used, **({"shortened_to": gev["shortened_to"]}
                                                        if gev.get("shortened_to") is not None else {}))

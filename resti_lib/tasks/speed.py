@@ -179,7 +179,8 @@ def _finish(o: Outcome, r: dict, op: str, subj, value: float, unit: str, t0: flo
             estimator: str | None = None) -> None:
     ent = o.contract["entity"]
     o.contract.update({"entity": {**ent, **subj.entity}, "operator": op, "times": [t0, t1], "unit": unit,
-                       "unit_stated": True, "frame": subj.track.name, "missing": []})
+                       "unit_stated": True, "frame": subj.track.name, "missing": [],
+                       "legacy_missing": list(o.contract.get("missing", []))})
     o.contract["params"]["statistic"] = STATISTICS.get(op, estimator)
     o.source_files = list(subj.files)
     o.frames = source_frames(subj.track, t0, t1)
