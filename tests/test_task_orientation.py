@@ -105,6 +105,13 @@ def test_shortened_interval_says_so():
     assert c.times == [0.0, 1.0] and c.time_stated and not c.missing
 
 
+def test_end_within_one_frame_past_the_track_is_clamped_and_recorded():
+    tr = track_of([look((1, 0, 0)), look((0, 1, 0))], times=np.array([0.0, 1.0]))
+    assert O.clamp_to_track(tr, 0.0, 1.05, 0.1) == (0.0, 1.0, {"t1": {"asked": 1.05, "used": 1.0}})
+    assert O.clamp_to_track(tr, 0.0, 1.5, 0.1) == (0.0, 1.5, {})
+    assert O.clamp_to_track(tr, 0.0, 0.5, 0.1) == (0.0, 0.5, {})
+
+
 def test_option_spread_scales_with_the_answer():
     p = O.task_params({})
     assert O.option_spread(0.2, p) == (2.0, 3.0)

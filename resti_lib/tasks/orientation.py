@@ -46,6 +46,7 @@ DEFAULTS: dict[str, Any] = {
     "angle_abs_tol_deg": 0.01,
     "time_tol_s": 1e-6,
     "pose_rule": "linear",
+    "end_slack_s": 0.1,
     "omni6d_up": [0.0, 0.0, 1.0],
     "invariance_check": True,
     "spread_deg": {"low": 2.0, "frac": 1.0, "min_high": 3.0, "max_high": 30.0},
@@ -175,6 +176,23 @@ def invariance_error(tracks: Tracks, t0: float, t1: float, p: dict, rng: np.rand
 # ===================================================================================== rows
 
 
+def clamp_to_track(track: PoseTrack, t0: float, t1: float, slack: float) -> tuple[float, float, dict]:
+    """Move interval ends that lie outside the track by at most ``slack`` seconds onto its first/last
+    sample (a video end printed as ``N / fps`` against a last sample at ``(N - 1) / fps``).
+
+    Farther ends are left alone (the operator then refuses them). Returns ``(t0, t1, changes)``.
+    """
+    changes = {}
+    first, last = float(track.times[0]), float(track.times[-1])
+    if first - slack <= t0 < first:
+        changes["t0"] = {"asked": t0, "used": first}
+        t0 = first
+    if last < t1 <= last + slack:
+        changes["t1"] = {"asked": t1, "used": last}
+        t1 = last
+    return t0, t1, changes
+
+
 def rewrite_question(t0: float, t1: float, shortened_from: float | None) -> str:
     """v5 wording; a shortened interval names its last valid pose and the invalid remainder."""
     note = ""
@@ -208,8 +226,10 @@ def audit_row(row: dict, ctx: SourceContext, p: dict, seed: int = 0) -> Outcome:
     if c.sequence is None:
         return o.exclude("unsupported_question", problem="video maps to no source sequence")
     t0, t1 = (float(x) for x in (c.times if len(c.times) == 2 else [row["time_start"], row["time_end"]]))
+    clamped = None
     try:
         tracks = camera_tracks(ctx, c.source, c.sequence, c.camera, p)
+        t0, t1, clamped = clamp_to_track(tracks.cv, t0, t1, float(p["end_slack_s"]))
         theta, ev = G.heading_change(tracks.cv, t0, t1, tracks.forward, tracks.up, rule=str(p["pose_rule"]),
                                      tol=float(p["time_tol_s"]))
         conv = conventions(tracks, t0, t1, p)
@@ -247,6 +267,8 @@ def audit_row(row: dict, ctx: SourceContext, p: dict, seed: int = 0) -> Outcome:
     o.evidence["diagnosis"] = diag
     o.evidence["heading"] = {"value_deg": float(theta), "forward_t0": ev["forward_t0"],
                              "forward_t1": ev["forward_t1"], "up": list(tracks.up), "world": tracks.world}
+    if clamped:
+        o.evidence["clamped_to_track"] = clamped
     if shortened:
         o.evidence["shortened_to"] = float(ev["shortened_to"])
         o.evidence["shortened_from"] = float(ev["shortened_from"])
