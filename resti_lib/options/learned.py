@@ -1,0 +1,354 @@
+"""A learned blind attacker: a classifier that scores each candidate from the five candidate strings.
+
+Where the rule attacks of :mod:`resti_lib.options.attacks` test one shortcut each, this attacker
+combines them and learns regularities across rows (value ranges of a task, string forms, field
+structure). It sees, per candidate, only features computed from the row's five candidate strings
+and the row's task, source and letter layout:
+
+- the parsed value summaries of the candidate (scalar value and its logarithm, angle, trajectory
+  totals, box centre / log-dimensions / heading, pose translation / rotation angle), and for each
+  summary the candidate's rank in the row, the gaps to its neighbours, its distance to the row mean
+  (standardised) and to the row medoid;
+- for boxes and poses: distances to the centroid of each field group and the medoid scores, the
+  per-field median and modal votes (the rule attacks' statistics), the printed rotation entries,
+  and camera geometry (is a box centre in view; does a camera look where the reference camera
+  looks);
+- string length and digit count (absolute and relative to the row), the letter, the task and source
+  (one-hot), the relation label (one-hot) and the trajectory phrase structure.
+
+A gradient-boosting classifier (scikit-learn, fixed ``random_state``) is trained on candidate
+rows with label "is the keyed candidate" and evaluated out of fold with :class:`GroupKFold` on
+``Video``: no video is in a training and a test fold at once. The pick of a row is the candidate
+with the highest out-of-fold score (abstain on an exact tie). The picks join the rule attacks'
+picks as attack ``learned_blind`` before the binomial tests and Holm's correction
+(:func:`attack_table_with_learned`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .. import LETTERS, SOURCES, TASKS
+from .. import values as V
+from .attacks import ATTACKS, _project_so3, _rot_angle, parse_rows, run_picks, summarize_picks
+from .checks import ParsedRow
+
+NAME = "learned_blind"
+SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
+LABELS = tuple(V.RELATION_LABELS)
+
+
+@dataclass(frozen=True)
+class LearnedConfig:
+    """Classifier and cross-validation settings (all literal, so runs are reproducible)."""
+
+    model: str = "gradient_boosting"  # or "random_forest"
+    n_splits: int = 5
+    random_state: int = 0
+    max_iter: int = 200
+    learning_rate: float = 0.05
+    max_leaf_nodes: int = 15
+    min_samples_leaf: int = 20
+    n_estimators: int = 300
+
+
+# ------------------------------------------------------------------------------------ features
+
+def _summaries(p: ParsedRow) -> np.ndarray:
+    """(5, SUMMARY_SLOTS) kind-specific numeric summaries of the candidates in letter order."""
+    out = np.full((5, SUMMARY_SLOTS), np.nan)
+    vals = [p.values[k] for k in LETTERS]
+    for i, v in enumerate(vals):
+        if isinstance(v, V.Scalar):
+            if v.is_angle:
+                out[i, :3] = [v.value, abs(v.value), math.cos(math.radians(v.value))]
+            else:
+                out[i, :2] = [v.si, math.log10(abs(v.si) + 1e-3)]
+        elif isinstance(v, V.Trajectory):
+            turns = [abs(x) for k, x in v.segments if k == "turn"]
+            moves = [x for k, x in v.segments if k == "move"]
+            out[i, :5] = [v.total_distance, math.log10(v.total_distance + 1e-3), len(v.segments),
+                          sum(turns), max(moves) if moves else 0.0]
+        elif isinstance(v, V.Box):
+            c, d = np.array(v.center), np.log(np.maximum(np.array(v.lwh), 1e-6))
+            out[i, :9] = [*c, *d, v.heading if v.heading is not None else np.nan,
+                          float(d.sum()), float(np.linalg.norm(c))]
+        elif isinstance(v, V.Pose):
+            t, R = np.array(v.t), np.array(v.R)
+            ang = math.degrees(_rot_angle(np.eye(3), _project_so3(R)))
+            out[i, :9] = [*t, float(np.linalg.norm(t)), ang, *R[2], float(np.trace(R))]
+    return out
+
+
+def _geometry(p: ParsedRow) -> tuple[np.ndarray, np.ndarray]:
+    """Camera geometry of boxes and poses: (5, 3) summaries with within-row statistics, and the
+    (5, 9) printed rotation entries.
+
+    Boxes: the image-plane direction of the centre (x/z, y/z) and its largest magnitude (is it
+    in view). Poses: the distance between the candidate's optical axis and the reference camera's
+    (+Z through the origin), the depth of their closest approach, and the translation length
+    (does the camera look where the reference camera looks).
+    """
+    geo = np.full((5, 3), np.nan)
+    rot = np.full((5, 9), np.nan)
+    for i, k in enumerate(LETTERS):
+        v = p.values[k]
+        if isinstance(v, V.Box):
+            c = np.array(v.center, float)
+            if c[2] > 1e-6:
+                geo[i] = [c[0] / c[2], c[1] / c[2], max(abs(c[0]), abs(c[1])) / c[2]]
+            if v.R is not None:
+                rot[i] = np.array(v.R, float).ravel()
+        elif isinstance(v, V.Pose):
+            R, t = np.array(v.R, float), np.array(v.t, float)
+            a, b = np.array([0.0, 0.0, 1.0]), R[:, 2]
+            n = np.cross(a, b)
+            if np.linalg.norm(n) > 1e-6:
+                dist = abs(t @ n) / np.linalg.norm(n)
+                cab = a @ b
+                depth = (t @ a - cab * (t @ b)) / max(1.0 - cab * cab, 1e-9)
+            else:
+                dist, depth = float(np.linalg.norm(np.cross(t, a))), np.nan
+            geo[i] = [dist, depth, float(np.linalg.norm(t))]
+            rot[i] = R.ravel()
+    return geo, rot
+
+
+def _column_stats(x: np.ndarray) -> np.ndarray:
+    """Within-row statistics of one summary column x (5,): rank, gaps, z, |z|, medoid, is-min/max."""
+    out = np.full((5, 8), np.nan)
+    if np.isnan(x).any():
+        return out
+    order = np.argsort(x, kind="stable")
+    ranks = np.empty(5)
+    ranks[order] = np.arange(1, 6)
+    xs = x[order]
+    rng_ = xs[-1] - xs[0]
+    scale = rng_ if rng_ > 0 else 1.0
+    gaps_lo = np.empty(5)
+    gaps_hi = np.empty(5)
+    gaps_lo[order] = np.concatenate([[np.nan], np.diff(xs)]) / scale
+    gaps_hi[order] = np.concatenate([np.diff(xs), [np.nan]]) / scale
+    sd = x.std()
+    z = (x - x.mean()) / sd if sd > 0 else np.zeros(5)
+    med = np.abs(x[:, None] - x[None, :]).sum(1) / (scale * 4)
+    out[:, 0] = ranks
+    out[:, 1] = gaps_lo
+    out[:, 2] = gaps_hi
+    out[:, 3] = z
+    out[:, 4] = np.abs(z)
+    out[:, 5] = med
+    out[:, 6] = np.minimum(np.nan_to_num(gaps_lo, nan=np.inf), np.nan_to_num(gaps_hi, nan=np.inf))
+    out[:, 7] = np.abs(x - np.median(x)) / scale
+    return out
+
+
+def _group_stats(p: ParsedRow) -> np.ndarray:
+    """Box/pose field-group statistics: centroid distance and medoid score per group, field votes."""
+    out = np.full((5, 11), np.nan)
+    vals = [p.values[k] for k in LETTERS]
+    groups: list[list[np.ndarray]] = []
+    rot: list[np.ndarray] | None = None
+    if all(isinstance(v, V.Box) for v in vals):
+        groups = [[np.array(v.center) for v in vals], [np.log(np.maximum(np.array(v.lwh), 1e-6)) for v in vals]]
+        if all(v.R is not None for v in vals):
+            rot = [np.array(v.R) for v in vals]
+    elif all(isinstance(v, V.Pose) for v in vals):
+        groups = [[np.array(v.t) for v in vals]]
+        rot = [np.array(v.R) for v in vals]
+    else:
+        return out
+    col = 0
+    for g in groups:
+        X = np.array(g)
+        D = np.sqrt(((X[:, None] - X[None]) ** 2).sum(-1))
+        s = D.sum() / 20 or 1.0
+        out[:, col] = np.linalg.norm(X - X.mean(0), axis=1) / s
+        out[:, col + 1] = D.sum(1) / (4 * s)
+        col += 2
+    col = 4
+    if rot is not None:
+        M = _project_so3(np.mean(rot, axis=0))
+        D = np.array([[_rot_angle(a, b) for b in rot] for a in rot])
+        s = D.sum() / 20 or 1.0
+        out[:, col] = np.array([_rot_angle(R, M) for R in rot]) / s
+        out[:, col + 1] = D.sum(1) / (4 * s)
+    flat = np.array([v.vector() for v in vals]) if len({len(v.vector()) for v in vals}) == 1 else None
+    if flat is not None:
+        med_votes = np.zeros(5)
+        maj_votes = np.zeros(5)
+        for j in range(flat.shape[1]):
+            colv = flat[:, j]
+            hit = np.flatnonzero(np.abs(colv - np.median(colv)) <= 1e-12)
+            if len(hit) == 1:
+                med_votes[hit[0]] += 1
+            c = Counter(np.round(colv, 9))
+            val, n = c.most_common(1)[0]
+            if n >= 2:
+                maj_votes[np.round(colv, 9) == val] += 1
+        out[:, 6] = med_votes / flat.shape[1]
+        out[:, 7] = maj_votes / flat.shape[1]
+        sd = flat.std(0)
+        keep = sd > 1e-12
+        if keep.any():
+            Z = (flat[:, keep] - flat[:, keep].mean(0)) / sd[keep]
+            out[:, 8] = np.linalg.norm(Z, axis=1)
+            DZ = np.sqrt(((Z[:, None] - Z[None]) ** 2).sum(-1))
+            out[:, 9] = DZ.sum(1) / max(DZ.sum() / 5, 1e-12)
+        out[:, 10] = np.abs(flat - np.median(flat, axis=0)).sum(1) / (np.abs(flat - np.median(flat, axis=0)).sum() / 5
+                                                                     or 1.0)
+    return out
+
+
+def row_features(p: ParsedRow) -> np.ndarray:
+    """(5, F) features of the five candidates of one complete row, in letter order."""
+    strings = [str(p.candidates[k]) for k in LETTERS]
+    n = 5
+    task = np.zeros((n, len(TASKS)))
+    if p.task in TASKS:
+        task[:, TASKS.index(p.task)] = 1
+    src = np.zeros((n, len(SOURCES)))
+    if p.source in SOURCES:
+        src[:, SOURCES.index(p.source)] = 1
+    letter = np.eye(5)
+    lens = np.array([len(s) for s in strings], float)
+    digits = np.array([sum(ch.isdigit() for ch in s) for s in strings], float)
+    minus = np.array([s.count("-") for s in strings], float)
+    strf = np.column_stack([lens, digits, minus, lens - lens.mean(), digits - digits.mean(), minus - minus.mean(),
+                            _column_stats(lens)[:, 0], _column_stats(digits)[:, 0],
+                            (lens == lens.min()) & ((lens == lens.min()).sum() == 1),
+                            (lens == lens.max()) & ((lens == lens.max()).sum() == 1)])
+    summ = _summaries(p)
+    stats = np.concatenate([_column_stats(summ[:, j]) for j in range(SUMMARY_SLOTS)], axis=1)
+    angle = np.full((n, 2), np.nan)
+    vals = [p.values[k] for k in LETTERS]
+    if all(isinstance(v, V.Scalar) and v.is_angle for v in vals):
+        rad = np.radians([v.value for v in vals])
+        m = math.atan2(np.sin(rad).mean(), np.cos(rad).mean())
+        d = np.abs(np.angle(np.exp(1j * (rad - m))))
+        angle[:, 0] = d
+        angle[:, 1] = _column_stats(d)[:, 0]
+    lab = np.zeros((n, len(LABELS) + 1))
+    traj = np.full((n, 3), np.nan)
+    for i, v in enumerate(vals):
+        if isinstance(v, V.Label):
+            j = LABELS.index(v.text) if v.text in LABELS else len(LABELS)
+            lab[i, j] = 1
+        if isinstance(v, V.Trajectory):
+            st = v.structure
+            traj[i] = [len(st), sum(1 for s in st if s == "turn+"), sum(1 for s in st if s == "turn-")]
+    geo, rot = _geometry(p)
+    geo_stats = np.concatenate([_column_stats(geo[:, j]) for j in range(geo.shape[1])], axis=1)
+    return np.concatenate([task, src, letter, strf, summ, stats, _group_stats(p), angle, lab, traj, geo, geo_stats,
+                           rot], axis=1)
+
+
+def feature_matrix(rows: list[ParsedRow]) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Stacked candidate features ``X`` (5 per usable row), labels ``y`` and the usable row indices."""
+    X, y, used = [], [], []
+    for i, p in enumerate(rows):
+        if not (p.complete and p.answer in LETTERS):
+            continue
+        X.append(row_features(p))
+        y.append([k == p.answer for k in LETTERS])
+        used.append(i)
+    if not X:
+        return np.zeros((0, 0)), np.zeros(0, bool), []
+    return np.concatenate(X).astype(float), np.concatenate(y).astype(bool), used
+
+
+# ------------------------------------------------------------------------------------ the attack
+
+def _model(cfg: LearnedConfig):
+    if cfg.model == "gradient_boosting":
+        from sklearn.ensemble import HistGradientBoostingClassifier
+
+        return HistGradientBoostingClassifier(max_iter=cfg.max_iter, learning_rate=cfg.learning_rate,
+                                              max_leaf_nodes=cfg.max_leaf_nodes,
+                                              min_samples_leaf=cfg.min_samples_leaf, early_stopping=False,
+                                              random_state=cfg.random_state)
+    if cfg.model == "random_forest":
+        from sklearn.ensemble import RandomForestClassifier
+
+        return RandomForestClassifier(n_estimators=cfg.n_estimators, min_samples_leaf=cfg.min_samples_leaf // 4 or 1,
+                                      random_state=cfg.random_state, n_jobs=1)
+    raise ValueError(f"unknown model {cfg.model!r} (gradient_boosting or random_forest)")
+
+
+def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None
+                       ) -> tuple[np.ndarray, list[int]]:
+    """Out-of-fold candidate scores, shape (n_used, 5), and the indices of the used rows.
+
+    Folds: :class:`sklearn.model_selection.GroupKFold` on the rows' videos (never split a video).
+    """
+    from sklearn.model_selection import GroupKFold
+    from threadpoolctl import threadpool_limits
+
+    cfg = cfg or LearnedConfig()
+    X, y, used = feature_matrix(rows)
+    if not used:
+        return np.zeros((0, 5)), []
+    X = X[:, ~np.all(np.isnan(X), axis=0)]  # features of kinds absent from these rows
+    groups_row = np.array([str(videos[i]) for i in used])
+    n_groups = len(set(groups_row))
+    if n_groups < 2:
+        raise ValueError("the learned attacker needs at least two videos for grouped cross-validation")
+    n_splits = min(cfg.n_splits, n_groups)
+    row_idx = np.arange(len(used))
+    scores = np.full((len(used), 5), np.nan)
+    for train, test in GroupKFold(n_splits=n_splits).split(row_idx, groups=groups_row):
+        tr = (train[:, None] * 5 + np.arange(5)).ravel()
+        te = (test[:, None] * 5 + np.arange(5)).ravel()
+        if y[tr].all() or not y[tr].any():
+            scores[test] = 0.0
+            continue
+        model = _model(cfg)
+        with threadpool_limits(1):  # one thread: reproducible sums and no oversubscription
+            model.fit(X[tr], y[tr])
+            proba = model.predict_proba(X[te])[:, list(model.classes_).index(True)]
+        scores[test] = proba.reshape(-1, 5)
+    return scores, used
+
+
+def learned_picks(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None) -> pd.DataFrame:
+    """Per-row picks of the learned attacker, in the columns of :func:`attacks.run_picks`."""
+    scores, used = out_of_fold_scores(rows, videos, cfg)
+    recs = []
+    for s, i in zip(scores, used):
+        p = rows[i]
+        top = np.max(s)
+        win = np.flatnonzero(np.abs(s - top) <= 1e-12)
+        pick = LETTERS[int(win[0])] if len(win) == 1 else None
+        recs.append((NAME, p.rid, p.task, p.source, pick, p.answer, pick == p.answer))
+    return pd.DataFrame.from_records(recs, columns=["attack", "rid", "task", "source", "pick", "answer", "hit"])
+
+
+def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
+                              learned: LearnedConfig | None | bool = None) -> pd.DataFrame:
+    """The rule attacks' table with ``learned_blind`` appended before the binomial tests and Holm.
+
+    ``learned=False`` leaves the learned attacker out (the plain :func:`attacks.attack_table`).
+    """
+    rows = parse_rows(records)
+    picks = run_picks(rows, attacks)
+    if learned is not False:
+        cfg = learned if isinstance(learned, LearnedConfig) else LearnedConfig()
+        videos = [r.get("Video") for r in records]
+        picks = pd.concat([picks, learned_picks(rows, videos, cfg)], ignore_index=True)
+    tests = {n: 5 if n == "constant_letter" else 1 for n in list(ATTACKS) + [NAME]}
+    return summarize_picks(picks, alpha=alpha, tests=tests)
+
+
+def config_from(params: dict | None) -> LearnedConfig:
+    """A :class:`LearnedConfig` from a params mapping (unknown keys raise)."""
+    params = dict(params or {})
+    known = set(LearnedConfig.__dataclass_fields__)
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise ValueError(f"unknown learned-attacker setting(s) {unknown}; known: {sorted(known)}")
+    return LearnedConfig(**params)
