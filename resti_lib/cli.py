@@ -1,4 +1,4 @@
-"""The ``resti`` command line: verify, attack, measure, synth, run."""
+"""The ``resti`` command line: verify, attack, reoption, measure, synth, run."""
 
 from __future__ import annotations
 
@@ -38,6 +38,24 @@ def _cmd_attack(a) -> int:
     return 0
 
 
+def _cmd_reoption(a) -> int:
+    from .reoption import ReoptionError, reoption_release
+    from .runner import load_params
+
+    params = load_params(a.params) if a.params else {}
+    seed = a.seed if a.seed is not None else int(params.get("seed", 0))
+    try:
+        res = reoption_release(a.release, a.out, seed=seed, options=params.get("options"))
+    except ReoptionError as e:
+        print(f"resti reoption: {e}", file=sys.stderr)
+        return 1
+    counts = res.meta["counts"]
+    print(f"wrote {res.out_dir}: {counts['accepted']} rows rebuilt, {counts['excluded']} exclusions copied, "
+          f"seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
+    print("answer letters: " + " ".join(f"{k}={n}" for k, n in res.meta["answer_letters"].items()))
+    return 0
+
+
 def _cmd_measure(a) -> int:
     from .measure import measure_main
 
@@ -74,6 +92,14 @@ def build_parser() -> argparse.ArgumentParser:
     at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate")
     at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all)")
     at.set_defaults(fn=_cmd_attack)
+
+    ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "
+                        "new distractors and letters)")
+    ro.add_argument("--release", default="${SHARED}/data/resti_v5", help="input release folder or file")
+    ro.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    ro.add_argument("--seed", type=int, default=None, help="option seed (default: params seed, else 0)")
+    ro.add_argument("--params", default=None, help="params YAML with seed and options (e.g. params/reoption.yaml)")
+    ro.set_defaults(fn=_cmd_reoption)
 
     m = sub.add_parser("measure", help="evaluate measurement contracts against the sources",
                        add_help=False)
