@@ -351,3 +351,20 @@ def test_v5_no_significant_attack_after(rebuilt):
 def test_v5_rebuilt_release_loads_strictly(rebuilt):
     rel = load_release(rebuilt.out_dir)
     assert len(rel.accepted) == 1782 and len(rel.excluded) == 282
+
+
+@pytest.mark.notebook
+def test_notebook_runs_on_a_small_release(tiny_release, tmp_path):
+    from resti_lib import paths
+    from resti_lib.runner import load_params, run_notebook
+
+    params = load_params(paths.PARAMS / "reoption.yaml")
+    params.update(release_path=str(tiny_release), output_dir=str(tmp_path / "rel"), table_dir=str(tmp_path / "t"),
+                  figure_dir=str(tmp_path / "f"), learned={"max_iter": 30})
+    run = run_notebook(paths.NOTEBOOKS / "90_reoption_release.ipynb", params, out_dir=tmp_path / "nb",
+                       html_dir=tmp_path / "html")
+    assert run.html.exists()
+    assert verify_path(tmp_path / "rel")["passed"]
+    side = pd.read_csv(tmp_path / "t" / "attacks_side_by_side.csv")
+    assert {"accuracy_in", "accuracy_out"} <= set(side.columns) and "learned_blind" in set(side["attack"])
+    assert (tmp_path / "f" / "90_reoption_release_strongest.png").exists()
