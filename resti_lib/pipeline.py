@@ -80,13 +80,15 @@ def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int
     waves: dict[int, list[dict]] = {}
     for s in stages:
         waves.setdefault(int(s.get("wave", 0)), []).append(s)
+    out_root = paths.resolve(cfg.get("output_dir") or "outputs")
+    nb_dir, html_dir = out_root / "notebooks", out_root / "report" / "notebooks"
     bar = tqdm(total=len(stages), desc="notebooks", unit="nb", file=sys.stderr)
     runs = []
     try:
         for w in sorted(waves):
             prepared = [stage_params(s, common) for s in waves[w]]
             with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(prepared)))) as ex:
-                futures = [ex.submit(run_notebook, nb, p) for nb, p in prepared]
+                futures = [ex.submit(run_notebook, nb, p, out_dir=nb_dir, html_dir=html_dir) for nb, p in prepared]
                 for f in futures:
                     r = f.result()
                     runs.append(r)
@@ -99,6 +101,6 @@ def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int
     bar.close()
     from .report import write_index
 
-    index = write_index()
+    index = write_index(out_root)
     print(f"resti run: {len(runs)} notebooks in {time.perf_counter() - t0:.1f}s; report: {index}")
     return 0
