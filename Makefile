@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PARAMS ?= params/default.yaml
 
-.PHONY: help report test bench screenshot lint clean strip-notebooks
+.PHONY: help venv report reoption test bench screenshot lint clean strip-notebooks
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -21,6 +21,9 @@ venv: $(STAMP)  ## create .venv and install resti with its dependencies
 
 report: $(STAMP)  ## main job: mini-world (if absent) -> task notebooks -> release, tables, figures, HTML report
 	$(BIN)/resti run --params $(PARAMS)
+
+reoption: $(STAMP)  ## rebuild the options of the public ReSTI v5 release (notebook 90) and re-index the report
+	$(BIN)/resti run --params $(PARAMS) --only 90_reoption_release
 
 test: $(STAMP)  ## run the test suite (real-data tests need ../shared or RESTI_SHARED)
 	$(BIN)/python -m pytest -q

@@ -83,13 +83,16 @@ def paper_comparison(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05, attacks="all"
-                 ) -> pd.DataFrame:
-    """Attacks on a legacy ``qa.parquet`` ("before repair"): a hit is a pick of the keyed letter."""
+def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05, attacks="all",
+                 learned: bool = False) -> pd.DataFrame:
+    """Attacks on a legacy ``qa.parquet`` ("before repair"): a hit is a pick of the keyed letter.
+    ``learned=True`` adds the learned blind attacker (cross-validated by video) to the family."""
     from .io.benchmark import load_legacy
+    from .options.learned import attack_table_with_learned
 
     df, _ = load_legacy(legacy, strict=False)
-    table = attack_table(df.to_dict("records"), alpha=alpha, attacks=select_attacks(attacks))
+    table = attack_table_with_learned(df.to_dict("records"), alpha=alpha, attacks=select_attacks(attacks),
+                                      learned=None if learned else False)
     write_table(table, Path(out_dir) / "attacks_legacy", caption=f"Option-only attacks on the legacy "
                 f"benchmark (Holm alpha={alpha})")
     return table

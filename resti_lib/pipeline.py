@@ -71,6 +71,8 @@ def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int
         return 2
     if only:
         stages = [s for s in stages if s["notebook"] in only or s["notebook"].split("_", 1)[-1] in only]
+    else:  # on-demand stages (e.g. the re-optioned public release) run only when named
+        stages = [s for s in stages if not s.get("on_demand")]
         if not stages:
             print(f"resti run: no stage matches {only}", file=sys.stderr)
             return 2
