@@ -103,11 +103,12 @@ def centre_in_view(world: Path, segment: str, camera: int, oid: str, t0: float, 
 
 
 def unseen_subject_rows(run, man, world) -> set[int]:
-    """Rows whose subject the generator took although the camera never sees it.
+    """Rows whose subject the generator took although the camera never sees it (none expected).
 
-    The generator falls back to unseen movers when none is in view; the audit requires the
-    subject in view (ReSTI v5: out-of-frustum targets are excluded). Checked here independently:
-    the manifest's object centre never projects into the camera image during the interval.
+    The audit requires the subject in view (ReSTI v5: out-of-frustum targets are excluded) and the
+    generator only takes subjects seen during the interval; a row listed here is a generator
+    regression. Checked here independently: the manifest's object centre never projects into the
+    camera image during the interval.
     """
     out = set()
     for o in run.outcomes:
@@ -128,7 +129,8 @@ def source_ambiguous_rows(run, man, world) -> set[int]:
 
     Waymo boxes carry a type, not a description; when another box of the same class is in view at
     the asked frame (checked here independently, by the mini-world's own centre-in-view criterion)
-    and the legacy value cannot decide, the audit excludes the row as ``ambiguous_instance``.
+    and the legacy value cannot decide, the audit excludes the row as ``ambiguous_instance``. The
+    generator keeps its referents unique in view, so none is expected.
     """
     out = set()
     for o in run.outcomes:

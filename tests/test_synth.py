@@ -710,6 +710,8 @@ def test_scale_mirrors_the_legacy_structure(tmp_path, resti_v5_dir):
     n = len(man)
     assert abs(sum("key_detail_mismatch" in m["defects"] for m in man) - 1014) < 0.03 * n
     assert 20 <= sum("duplicate_options_exact" in m["defects"] for m in man) <= 45
+    problems, seen = _waymo_referent_problems(tmp_path, man)
+    assert problems == [] and min(seen.values()) >= 20
 
 
 def test_scale_fallback_without_release(tmp_path, world):
@@ -805,6 +807,72 @@ def test_object_truth_by_hand(world, manifest):
     assert seen[("ScanNet", "dimension")] >= 2 and seen[("ScanNet", "distance_to_camera")] >= 1
 
 
+def _centres_in_view(rows: pd.DataFrame, cal: pd.Series, T: np.ndarray) -> np.ndarray:
+    """Per lidar_box row: the box centre projects inside the camera image at a depth in (0, 80] m
+    (``T``: OpenCV camera <- vehicle; ``cal``: the camera's calibration row)."""
+    c = rows[[f"[LiDARBoxComponent].box.center.{a}" for a in "xyz"]].to_numpy() @ T[:3, :3].T + T[:3, 3]
+    fu, fv, cu, cv = (
+        cal[f"[CameraCalibrationComponent].intrinsic.{k}"] for k in ("f_u", "f_v", "c_u", "c_v")
+    )
+    w, h = cal["[CameraCalibrationComponent].width"], cal["[CameraCalibrationComponent].height"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = fu * c[:, 0] / c[:, 2] + cu, fv * c[:, 1] / c[:, 2] + cv
+    return (c[:, 2] > 0) & (c[:, 2] <= 80) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+
+
+def _waymo_referent_problems(out: Path, manifest: list[dict]) -> tuple[list, Counter]:
+    """Accepted Waymo object rows whose referent a viewer of the video could not pin down.
+
+    From the written files only (lidar_box centres, calibration, pinhole projection): a motion
+    subject (path length, acceleration) must have its box centre inside the image of the video's
+    camera (depth 0-80 m) at one frame of the asked interval at least; a Dimensional referent must
+    be in view at the asked frame with no other box of its type in view there.
+    """
+    segs, problems, seen = {}, [], Counter()
+    for m in manifest:
+        ent = m["contract"]["entity"]
+        if m["source"] != "Waymo" or m["expected_verdict"] == "excluded" or ent.get("kind") != "object":
+            continue
+        op = m["contract"]["operator"]
+        if op not in ("path_length", "acceleration", "dimension", "distance_to_camera"):
+            continue
+        if m["sequence"] not in segs:
+            s = _waymo_segment(out, m["sequence"])
+            s["box"] = pd.read_parquet(out / "waymo" / "lidar_box" / f"{m['sequence']}.parquet")
+            s["cal"] = pd.read_parquet(out / "waymo" / "camera_calibration" / f"{m['sequence']}.parquet")
+            segs[m["sequence"]] = s
+        s = segs[m["sequence"]]
+        cal = s["cal"][s["cal"]["key.camera_name"] == m["camera"]].iloc[0]
+        T = np.linalg.inv(s["E"][m["camera"]] @ T_WAYMO_FROM_CV)  # cv camera <- vehicle
+        in_view = functools.partial(_centres_in_view, cal=cal, T=T)
+        ks = [int(np.argmin(np.abs(s["t"] - x))) for x in m["contract"]["times"]]
+        box = s["box"]
+        if op in ("path_length", "acceleration"):
+            frames = s["micros"][ks[0] : ks[-1] + 1]
+            rows = box[
+                (box["key.laser_object_id"] == ent["id"]) & box["key.frame_timestamp_micros"].isin(frames)
+            ]
+            if not in_view(rows).any():
+                problems.append((m["row"], op, "subject never in view during the interval"))
+        else:
+            rows = box[box["key.frame_timestamp_micros"] == s["micros"][ks[0]]]
+            rows = rows[rows["[LiDARBoxComponent].type"] == ent["type"]]
+            ids = rows.loc[in_view(rows), "key.laser_object_id"].tolist()
+            if ids != [ent["id"]]:
+                problems.append((m["row"], op, f"in view of the type at the asked frame: {ids}"))
+        seen[op] += 1
+    return problems, seen
+
+
+def test_waymo_object_referents_seen_and_unique(world, manifest):
+    """An unseen motion subject is out of view, and a second box of the referent's type makes the row
+    ambiguous: the legacy builder never takes such objects for rows it keeps."""
+    problems, seen = _waymo_referent_problems(world[0], manifest)
+    assert problems == []
+    assert seen["path_length"] >= 2 and seen["acceleration"] >= 4
+    assert seen["dimension"] + seen["distance_to_camera"] >= 6
+
+
 @pytest.mark.parametrize("seed", [5, 11, 23])
 def test_other_seeds_build_every_variant(seed):
     """Any seed builds: every row is buildable and every exclusion reason still occurs."""
@@ -814,6 +882,8 @@ def test_other_seeds_build_every_variant(seed):
     world_, _, _ = _build_pool(seed)
     rows, man = build_rows(world_, _default_slots(world_), seed)
     assert len(rows) == len(man) >= 250
+    # a moving object's description never calls it parked (motion questions presuppose motion)
+    assert not any(o.moving and "parked" in o.description for s in world_.waymo.values() for o in s.objects)
     reasons = Counter(r for m in man for r in m["expected_reasons"])
     assert set(reasons) >= {
         "ambiguous_instance",

@@ -10,6 +10,13 @@ Rates are fixed counts per (task, source) group, chosen by a seeded permutation,
 any size carries every defect class. Per-row randomness comes from
 ``default_rng(stable_seed(seed, row key))``.
 
+Waymo object referents of kept rows are ones a viewer of the video can find (the audit excludes
+the others as ``not_visible_at_frame`` / ``ambiguous_instance``): a motion subject (Displacement
+"How far has the {desc} traveled ...", acceleration) is visible in the video's camera at one frame
+of the asked interval at least, and a video whose camera never sees a mover is passed over when
+those variants are assigned; a Dimensional referent is the only object of its type in view at the
+asked frame (other objects of the type not even seen loosely, :meth:`WaymoSegment.seen_loosely`).
+
 Unit tags: none of the legacy scalar templates (Displacement & Path Length, Speed & Acceleration,
 Dimensional Measurement) states the unit of its answer, so every row of those tasks carries
 ``unit_tag_missing``.
@@ -121,6 +128,8 @@ _FLOOR = {
     ("desktop", "m/s"): 0.005,
     ("outdoor", "m/s²"): 0.1,
 }
+#: (shortest, longest) integer-second interval of Waymo object-subject rows: path length, acceleration.
+_INTERVAL = {"path": (2, 12), "accel": (3, 12)}
 _CENTER_GAP = {"indoor": (0.08, 0.8), "outdoor": (0.5, 4.0), "desktop": (0.01, 0.08)}
 _POSE_GAP = {"ScanNet": (0.3, 2.0), "Waymo": (1.0, 20.0), "Omni6DPose": (0.05, 0.4)}
 
@@ -286,14 +295,50 @@ def _sn_multi_visible(s: ScanNetScene, rng: np.random.Generator) -> tuple[str, i
     return label, f, visible
 
 
-def _wm_unique_visible(s: WaymoSegment, cam: int) -> list[tuple[int, int]]:
-    """(object index, frame) pairs where the object is the only visible one of its type."""
+def _wm_unique_visible(s: WaymoSegment, cam: int, loose: bool = False) -> list[tuple[int, int]]:
+    """(object index, frame) pairs where the object is visible and the only visible one of its type.
+
+    ``loose``: the other objects of the type must not even be seen loosely
+    (:meth:`WaymoSegment.seen_loosely`, a superset of any frustum test of the box), so no viewer can
+    find a second candidate at that frame.
+    """
     vis = s.visible(cam)
+    seen = s.seen_loosely(cam) if loose else vis
     types = np.array([o.type for o in s.objects])
     out = []
     for i, o in enumerate(s.objects):
-        n_same = vis[types == o.type].sum(axis=0)
-        out += [(i, int(k)) for k in np.flatnonzero(vis[i] & (n_same == 1))]
+        same = types == o.type
+        same[i] = False
+        n_other = seen[same].sum(axis=0)
+        out += [(i, int(k)) for k in np.flatnonzero(vis[i] & (n_other == 0))]
+    return out
+
+
+def _wm_movers(s: WaymoSegment, what: str) -> list:
+    """Subject pool of a Waymo motion row: ``"path"`` (moving vehicles and cyclists), ``"sedan"``
+    (the moving sedans of bare "the car" questions) or ``"accel"`` (movers with |a| >= 0.1 m/s²)."""
+    if what == "accel":
+        return [o for o in s.objects if o.moving and abs(o.a) >= 0.1]
+    movers = [o for o in s.objects if o.moving and o.kind != "pedestrian"]
+    return [o for o in movers if o.kind == "sedan"] if what == "sedan" else movers
+
+
+def _wm_seen_intervals(
+    s: WaymoSegment, movers: list, cam: int, lo: int, hi: int
+) -> list[tuple[int, int, int]]:
+    """Every (object index, t0, t1) of integer seconds, ``lo <= t1 - t0 <= hi``, inside the object's
+    track and with the object visible in ``cam`` at one frame of the interval at least."""
+    vis = s.visible(cam)
+    end = int(math.floor(s.video_end))
+    out = []
+    for o in movers:
+        i = s.objects.index(o)
+        for t0 in range(end - lo + 1):
+            k0 = s.frame_of(t0)
+            for t1 in range(t0 + lo, min(t0 + hi, end) + 1):
+                k1 = s.frame_of(t1)
+                if o.present[k0 : k1 + 1].all() and vis[i, k0 : k1 + 1].any():
+                    out.append((i, t0, t1))
     return out
 
 
@@ -305,11 +350,17 @@ def _wm_object_interval(
     lo: int,
     hi: int,
     need_visible: bool = True,
+    seen_intervals: list[tuple[int, int, int]] | None = None,
 ):
-    """An object and an integer-second interval inside its track (and seen by ``cam`` when possible)."""
+    """An object and an integer-second interval inside its track.
+
+    ``need_visible``: the object is visible in ``cam`` at one frame of the interval at least (the
+    question's subject must be in the video); a random draw first, then one of ``seen_intervals``
+    (:func:`_wm_seen_intervals`); :class:`NoCandidate` when the camera never sees a mover.
+    Otherwise (the bare "the car" of ambiguous subjects) any mover of the segment qualifies.
+    """
     vis = s.visible(cam)
-    seen = [o for o in movers if vis[s.objects.index(o)].any()]
-    pool = seen if (seen and need_visible) else movers
+    pool = [o for o in movers if vis[s.objects.index(o)].any()] if need_visible else movers
     for _ in range(200):
         if not pool:
             break
@@ -323,10 +374,15 @@ def _wm_object_interval(
         k0, k1 = s.frame_of(t0), s.frame_of(t1)
         if not o.present[k0 : k1 + 1].all():
             continue
-        if o in seen and need_visible and not vis[s.objects.index(o), k0 : k1 + 1].any():
+        if need_visible and not vis[s.objects.index(o), k0 : k1 + 1].any():
             continue
         return o, t0, t1
-    raise NoCandidate("no tracked object for this interval")
+    if need_visible:
+        opts = seen_intervals if seen_intervals is not None else _wm_seen_intervals(s, movers, cam, lo, hi)
+        if opts:
+            i, t0, t1 = _choose(rng, opts)
+            return s.objects[i], t0, t1
+    raise NoCandidate("no tracked object seen by the camera over an interval")
 
 
 # ========================================================================== the row builders
@@ -345,6 +401,25 @@ class Builder:
         if key not in self._cache:
             self._cache[key] = fn()
         return self._cache[key]
+
+    def seen_intervals(self, s: WaymoSegment, cam: int, what: str, lo: int, hi: int) -> list:
+        """:func:`_wm_seen_intervals` of the ``what`` movers (:func:`_wm_movers`), computed once."""
+        return self.cached(
+            ("wm-seen-intervals", s.name, cam, what, lo, hi),
+            lambda: _wm_seen_intervals(s, _wm_movers(s, what), cam, lo, hi),
+        )
+
+    def can_host(self, slot: Slot, variant: str) -> bool:
+        """Whether the slot's video can carry ``variant``: a Waymo object subject (Displacement
+        ``object``, Speed ``accel``/``accel_mismatch``) needs a mover seen by the video's camera."""
+        if slot.source != "Waymo":
+            return True
+        s = self.world.waymo[slot.sequence]
+        if slot.task == "Displacement & Path Length" and variant == "object":
+            return bool(self.seen_intervals(s, slot.camera, "path", *_INTERVAL["path"]))
+        if slot.task == "Speed & Acceleration" and variant in ("accel", "accel_mismatch"):
+            return bool(self.seen_intervals(s, slot.camera, "accel", *_INTERVAL["accel"]))
+        return True
 
     def seq(self, slot: Slot):
         """The source sequence of a slot."""
@@ -652,12 +727,18 @@ class Builder:
         t0, t1 = self._interval(slot, s, rng)
         op = "displacement" if rng.random() < 0.5 else "path_length"
         entity: dict = {"kind": "camera"}
-        if slot.variant in ("object", "ambiguous"):
-            movers = [o for o in s.objects if o.moving and o.kind != "pedestrian"]
-            if slot.variant == "ambiguous":
-                movers = [o for o in movers if o.kind == "sedan"]
+        if slot.variant == "object":
             o, t0, t1 = _wm_object_interval(
-                s, movers, slot.camera, rng, 2, 12, need_visible=slot.variant == "object"
+                s,
+                _wm_movers(s, "path"),
+                slot.camera,
+                rng,
+                *_INTERVAL["path"],
+                seen_intervals=self.seen_intervals(s, slot.camera, "path", *_INTERVAL["path"]),
+            )
+        elif slot.variant == "ambiguous":  # "the car": any moving sedan, in view or not
+            o, t0, t1 = _wm_object_interval(
+                s, _wm_movers(s, "sedan"), slot.camera, rng, *_INTERVAL["path"], need_visible=False
             )
         if slot.variant == "zero":
             t1 = t0
@@ -725,8 +806,14 @@ class Builder:
         scen = SCENE_OF_SOURCE[slot.source]
         defects = ["unit_tag_missing"]
         if slot.variant in ("accel", "accel_mismatch"):
-            movers = [o for o in s.objects if o.moving and abs(o.a) >= 0.1]
-            o, t0, t1 = _wm_object_interval(s, movers, slot.camera, rng, 3, 12)
+            o, t0, t1 = _wm_object_interval(
+                s,
+                _wm_movers(s, "accel"),
+                slot.camera,
+                rng,
+                *_INTERVAL["accel"],
+                seen_intervals=self.seen_intervals(s, slot.camera, "accel", *_INTERVAL["accel"]),
+            )
             k0, k1 = self._frames(slot, s, t0, t1)
             value = s.obj_acceleration(o, k0, k1)
             legacy = value
@@ -981,10 +1068,17 @@ class Builder:
             ent = {"kind": "object", "id": inst.object_id, "label": inst.label}
             return value, inst.description, ent, f / s.fps, None, kind, comp
         if slot.source == "Waymo":
+            # the referent is the only object of its type in view at the asked frame: a dimension
+            # row asks at t rounded to 0.1 s, which must fall on the same frame
             vis = s.visible(slot.camera)
-            opts = [(i, int(k)) for i in range(len(s.objects)) for k in np.flatnonzero(vis[i])]
+            opts = self.cached(
+                ("wm-unique-loose", s.name, slot.camera),
+                lambda: _wm_unique_visible(s, slot.camera, loose=True),
+            )
+            if kind == "dimension":
+                opts = [(i, k) for i, k in opts if s.frame_of(round(float(s.t[k]), 1)) == k]
             if not opts:
-                raise NoCandidate("nothing visible in this camera")
+                raise NoCandidate("no object is the only one of its type in this camera's view")
             i, k = _choose(rng, opts)
             o = s.objects[i]
             if not fits(o.size):
@@ -1274,22 +1368,30 @@ def _coarse(text: str, unit: str) -> str:
 # ============================================================================= row assembly
 
 
-def assign_variants(slots: list[Slot], seed: int) -> None:
-    """Exact-count variant assignment per (task, source) group by a seeded permutation."""
+def assign_variants(
+    slots: list[Slot], seed: int, can_host: Callable[[Slot, str], bool] | None = None
+) -> None:
+    """Exact-count variant assignment per (task, source) group by a seeded permutation.
+
+    Each variant takes the next slots of the permutation that can host it (``can_host``, e.g. a
+    Waymo object subject needs a mover in the video's camera); slots passed over stay for the
+    following variants. A group with fewer hosts than the count carries fewer rows of the variant.
+    """
     groups: dict[tuple[str, str], list[Slot]] = {}
     for sl in slots:
         groups.setdefault((sl.task, sl.source), []).append(sl)
     for (task, source), group in sorted(groups.items()):
         rng = rng_for(seed, f"variants|{task}|{source}")
-        order = rng.permutation(len(group))
-        pos = 0
+        free = [int(i) for i in rng.permutation(len(group))]
         for variant, frac, at_least_one in VARIANTS.get((task, source), []):
             n = int(round(frac * len(group)))
             if at_least_one and len(group) >= 4:
                 n = max(n, 1)
-            for i in order[pos : pos + n]:
+            hosts = [i for i in free if can_host is None or can_host(group[i], variant)][:n]
+            for i in hosts:
                 group[i].variant = variant
-            pos += n
+            taken = set(hosts)
+            free = [i for i in free if i not in taken]
         if task == "3D Video Grounding":
             order2 = rng.permutation(len(group))
             for i in order2[: int(round(GROUNDING_NAMED * len(group)))]:
@@ -1322,8 +1424,8 @@ _DEFECT_ORDER = {code: i for i, code in enumerate(DEFECTS)}
 
 def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], list[dict]]:
     """Legacy rows (qa.parquet columns) and manifest records, in the same order."""
-    assign_variants(slots, seed)
     builder = Builder(world, seed)
+    assign_variants(slots, seed, builder.can_host)
     mismatch, dup_exact, dup_numeric = _answer_flags(slots, seed)
     rows, manifest = [], []
     for i, sl in enumerate(slots):

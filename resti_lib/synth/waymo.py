@@ -30,6 +30,7 @@ from .common import (
     rot_x,
     rot_y,
     rot_z,
+    rot_z_batch,
     round_list,
     smoothstep,
     stable_seed,
@@ -142,6 +143,7 @@ class WaymoSegment:
     turns: list[dict]
     ego_fn: object = None
     _vis: dict | None = None
+    _loose: dict | None = None
 
     @property
     def n_frames(self) -> int:
@@ -203,6 +205,39 @@ class WaymoSegment:
                 )
             self._vis[cam] = out
         return self._vis[cam]
+
+    def seen_loosely(self, cam: int) -> np.ndarray:
+        """(objects, frames) bool: any point of a 3x3x3 grid spanning the solid box (corners, edge
+        and face midpoints, centre) projects inside the image of ``cam`` enlarged by 5 % per border, at
+        a depth in (0.05, 100] m.
+
+        A generous superset of :meth:`visible` and of any reasonable frustum test of the box: an
+        object not seen loosely is out of every viewer's sight, so a referent is unique when no other
+        object of its type is seen loosely.
+        """
+        if self._loose is None:
+            self._loose = {}
+        if cam not in self._loose:
+            T = self.T_cv_from_vehicle(cam)
+            f_u, f_v, c_u, c_v = self.K(cam)
+            w, h = self.image_size(cam)
+            s = np.linspace(-0.5, 0.5, 3)
+            grid = np.array([[x, y, z] for x in s for y in s for z in s])
+            out = np.zeros((len(self.objects), self.n_frames), bool)
+            for i, o in enumerate(self.objects):
+                ks = np.flatnonzero(o.present)
+                R = rot_z_batch(o.heading_v[ks])  # (n, 3, 3) vehicle <- box
+                pv = np.einsum("nij,pj->npi", R, grid * o.size) + o.center_v[ks][:, None, :]
+                pc = pv @ T[:3, :3].T + T[:3, 3]
+                z = pc[..., 2]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    u = f_u * pc[..., 0] / z + c_u
+                    v = f_v * pc[..., 1] / z + c_v
+                    ok = (z > 0.05) & (z <= 100.0)
+                    ok &= (u >= -0.05 * w) & (u <= 1.05 * w) & (v >= -0.05 * h) & (v <= 1.05 * h)
+                out[i, ks] = ok.any(axis=1)
+            self._loose[cam] = out
+        return self._loose[cam]
 
     # ------------------------------------------------------------------ truth (own numpy)
     def box_in_camera(self, o: TrackedObject, k: int, cam: int) -> dict:
@@ -378,12 +413,14 @@ def _make_objects(rng: np.random.Generator, ego: _Ego, E: dict[int, np.ndarray])
     objs: list[TrackedObject] = []
     used_desc: set[str] = set()
 
-    def desc(kind: str) -> str:
-        for d in _KINDS[kind][2]:
+    def desc(kind: str, moving: bool) -> str:
+        # a moving object never gets a description that calls it parked
+        fits = [d for d in _KINDS[kind][2] if not (moving and " parked" in d)] or _KINDS[kind][2]
+        for d in fits:
             if d not in used_desc:
                 used_desc.add(d)
                 return d
-        return _KINDS[kind][2][0]
+        return fits[0]
 
     def add(kind, p0, u, v0, a, moving):
         typ, size, _ = _KINDS[kind]
@@ -395,7 +432,7 @@ def _make_objects(rng: np.random.Generator, ego: _Ego, E: dict[int, np.ndarray])
                 _object_id(rng),
                 str(kind),
                 typ,
-                desc(str(kind)),
+                desc(str(kind), moving),
                 size,
                 p0,
                 np.array(u, float) / np.linalg.norm(u),
