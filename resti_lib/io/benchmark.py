@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
 import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
@@ -171,11 +172,14 @@ def _raise_first(problems: list[Problem], strict: bool) -> None:
 
 # ----------------------------------------------------------------------------------------- legacy
 
-def load_legacy(path: str | os.PathLike, *, strict: bool = True) -> tuple[pd.DataFrame, list[Problem]]:
+def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable[str] | None = None
+                ) -> tuple[pd.DataFrame, list[Problem]]:
     """Read a legacy STI-Bench ``qa.parquet`` (or ``.jsonl``).
 
-    Returns the rows in file order with ``Candidates`` as dicts, plus ``row`` (0-based index) and
-    ``Legacy Row Key``; and the list of problems (empty when strict, since strict raises).
+    Returns the rows in file order with ``Candidates`` as dicts, plus ``row`` (0-based index in the
+    file) and ``Legacy Row Key``; and the list of problems (empty when strict, since strict raises).
+    ``tasks``: keep only rows of these tasks (their ``row`` and keys are those of the whole file:
+    identical rows always share a task, so the uid occurrence counter is unaffected).
     """
     path = Path(path)
     if not path.exists():
@@ -185,16 +189,26 @@ def load_legacy(path: str | os.PathLike, *, strict: bool = True) -> tuple[pd.Dat
             df = pd.read_parquet(path)
         except Exception as e:  # pyarrow raises several types for a damaged file
             raise InputError(f"cannot read parquet ({e})", file=path) from None
-        records = df.to_dict("records")
         cols = list(df.columns)
+        index = np.arange(len(df))
+        if tasks is not None and "Task" in df.columns:
+            keep = df["Task"].isin(list(tasks)).to_numpy()
+            df, index = df[keep], index[keep]
+        records = df.to_dict("records")
     else:
         records = _read_jsonl(path)
         cols = sorted({k for r in records for k in r}) if records else []
+        index = np.arange(len(records))
+        if tasks is not None:
+            wanted = set(tasks)
+            pairs = [(i, r) for i, r in zip(index, records) if r.get("Task") in wanted]
+            index = np.array([i for i, _ in pairs], dtype=int)
+            records = [r for _, r in pairs]
     missing = [c for c in LEGACY_COLUMNS if c not in cols]
     if missing:
         raise InputError(f"missing column(s) {missing}", file=path, field=missing[0])
     problems: list[Problem] = []
-    for i, r in enumerate(records):
+    for i, r in zip(index.tolist(), records):
         try:
             r["Candidates"] = _candidates(r.get("Candidates"), file=path, row=i)
         except InputError as e:
@@ -212,7 +226,7 @@ def load_legacy(path: str | os.PathLike, *, strict: bool = True) -> tuple[pd.Dat
         _raise_first(problems, strict)
     keys = legacy_row_keys(records)
     out = pd.DataFrame.from_records(records, columns=list(cols))
-    out["row"] = range(len(out))
+    out["row"] = index
     out["Legacy Row Key"] = keys
     return out, problems
 

@@ -7,7 +7,7 @@ The keys are those of ``../shared/formats/contract.md``: ``scannet_root`` (ScanN
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from .. import paths
@@ -15,6 +15,10 @@ from ..errors import InputError
 from .mapping import VideoSource, load_mapping_table, map_video
 
 ROOT_KEYS = {"ScanNet": "scannet_root", "Waymo": "waymo_root", "Omni6DPose": "omni6d_root"}
+
+# Opened sequences shared by every context of the process (several task audits in one process
+# read each sequence once). Keyed by source, root, sequence and frame rate; inputs are read-only.
+_OPENED: dict[tuple, object] = {}
 
 
 @dataclass
@@ -25,7 +29,6 @@ class SourceContext:
     scannet_fps: float = 30.0
     omni6d_fps: float = 30.0
     video_map: dict | None = None
-    _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_params(cls, params: dict) -> "SourceContext":
@@ -53,26 +56,29 @@ class SourceContext:
     def scannet(self, scene: str):
         from .scannet import ScanNetScene
 
-        k = ("ScanNet", scene)
-        if k not in self._cache:
-            self._cache[k] = ScanNetScene(self._root("ScanNet"), scene, fps=self.scannet_fps)
-        return self._cache[k]
+        root = self._root("ScanNet")
+        k = ("ScanNet", str(root), scene, self.scannet_fps)
+        if k not in _OPENED:
+            _OPENED[k] = ScanNetScene(root, scene, fps=self.scannet_fps)
+        return _OPENED[k]
 
     def waymo(self, segment: str):
         from .waymo import WaymoSegment
 
-        k = ("Waymo", segment)
-        if k not in self._cache:
-            self._cache[k] = WaymoSegment(self._root("Waymo"), segment)
-        return self._cache[k]
+        root = self._root("Waymo")
+        k = ("Waymo", str(root), segment)
+        if k not in _OPENED:
+            _OPENED[k] = WaymoSegment(root, segment)
+        return _OPENED[k]
 
     def rope(self, scene: str):
         from .omni6d import RopeScene
 
-        k = ("Omni6DPose", scene)
-        if k not in self._cache:
-            self._cache[k] = RopeScene(self._root("Omni6DPose"), scene, fps=self.omni6d_fps)
-        return self._cache[k]
+        root = self._root("Omni6DPose")
+        k = ("Omni6DPose", str(root), scene, self.omni6d_fps)
+        if k not in _OPENED:
+            _OPENED[k] = RopeScene(root, scene, fps=self.omni6d_fps)
+        return _OPENED[k]
 
     def sequence(self, video: str):
         """The opened source sequence of a video (ScanNetScene, WaymoSegment or RopeScene)."""

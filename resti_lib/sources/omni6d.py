@@ -147,6 +147,7 @@ class RopeScene:
         if not self.dir.is_dir():
             raise InputError("ROPE scene folder not found", file=self.dir, field="sequence")
         self._meta: dict[int, Any] = {}
+        self._memo: dict[tuple, Any] = {}  # derived tracks and boxes, computed once per scene
 
     @property
     def obj_meta_path(self) -> Path:
@@ -307,6 +308,9 @@ class RopeScene:
         ``rebase=True``: ``T_c0_from_cam(t)`` with ``c0`` the camera at the first frame;
         ``rebase=False``: ``T_scene_from_cam(t)`` in the stored scene frame.
         """
+        key = ("camera_track", rebase)
+        if key in self._memo:
+            return self._memo[key]
         frames = self.frames
         T = np.stack([self._world_from_cv(f) for f in frames])
         for k, f in enumerate(frames):
@@ -314,10 +318,12 @@ class RopeScene:
                            field="camera.quaternion")
         if rebase:
             T = invert_T(T[0]) @ T
-        return PoseTrack(np.array(frames) / self.fps, T, name=f"ROPE {self.scene} camera",
-                         source=str(self.dir),
-                         meta={"frames": np.array(frames), "convention": self.convention[0],
-                               "world": "camera at first frame" if rebase else "ROPE scene frame"})
+        track = PoseTrack(np.array(frames) / self.fps, T, name=f"ROPE {self.scene} camera",
+                          source=str(self.dir),
+                          meta={"frames": np.array(frames), "convention": self.convention[0],
+                                "world": "camera at first frame" if rebase else "ROPE scene frame"})
+        self._memo[key] = track
+        return track
 
     def world_up_in_track_frame(self, up_scene: np.ndarray) -> np.ndarray:
         """A scene-frame direction expressed in the rebased (first-camera) frame."""
@@ -333,6 +339,9 @@ class RopeScene:
         Each dict: ``oid``, ``class_name``, ``mask_id``, ``is_valid``, ``center`` (m),
         ``R`` (``R_cam_from_box``), ``lwh`` (= ``scale * dimensions``, m), ``bbox_side_len`` (as stored).
         """
+        key = ("object_boxes", frame)
+        if key in self._memo:
+            return [dict(b) for b in self._memo[key]]
         inst = self.object_meta.instance_dict
         out = []
         for o, Tc, _ in self._objects(frame, world=False):
@@ -347,13 +356,17 @@ class RopeScene:
             out.append({"oid": oid, "class_name": o.meta.class_name, "mask_id": int(o.mask_id),
                         "is_valid": bool(o.is_valid), "center": T[:3, 3].copy(), "R": T[:3, :3].copy(),
                         "lwh": lwh, "bbox_side_len": np.asarray(o.meta.bbox_side_len, dtype=np.float64)})
-        return out
+        self._memo[key] = out
+        return [dict(b) for b in out]
 
     def object_track(self, oid: str, *, rebase: bool = True) -> PoseTrack:
         """Object poses ``T_c0_from_obj`` (``rebase``) or ``T_scene_from_obj`` over the frames listing it.
 
         Chain: camera track at the frame @ the object's camera-frame pose (``T_cam_from_obj``).
         """
+        key = ("object_track", oid, rebase)
+        if key in self._memo:
+            return self._memo[key]
         cam = self.camera_track(rebase=rebase)
         T, times = [], []
         for k, f in enumerate(self.frames):
@@ -364,5 +377,7 @@ class RopeScene:
                     break
         if not T:
             raise InputError(f"object {oid} appears in no frame", file=self.dir, row=oid, field="oid")
-        return PoseTrack(np.array(times), np.stack(T), name=f"ROPE {self.scene} object {oid}",
-                         source=str(self.dir), meta={"oid": oid, "convention": self.convention[0]})
+        track = PoseTrack(np.array(times), np.stack(T), name=f"ROPE {self.scene} object {oid}",
+                          source=str(self.dir), meta={"oid": oid, "convention": self.convention[0]})
+        self._memo[key] = track
+        return track

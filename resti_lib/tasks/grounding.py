@@ -39,6 +39,7 @@ quantifier: ``grouped_referent``; no candidate in view: ``not_visible_at_frame``
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -616,13 +617,20 @@ def rope_view(rope, t: float, p: dict) -> FrameView:
 
 def open_view(ctx: SourceContext, source: str, sequence: str, camera: int | None, t: float, p: dict) -> FrameView:
     """The :class:`FrameView` of a row's sequence at ``t``."""
-    if source == "ScanNet":
-        return scannet_view(ctx.scannet(sequence), t, p)
-    if source == "Waymo":
-        if camera is None:
-            raise ContractError("Waymo video without a camera number")
-        return waymo_view(ctx.waymo(sequence), int(camera), t, p)
-    return rope_view(ctx.rope(sequence), t, p)
+    if source == "Waymo" and camera is None:
+        raise ContractError("Waymo video without a camera number")
+    seq = {"ScanNet": ctx.scannet, "Waymo": ctx.waymo, "Omni6DPose": ctx.rope}[source](sequence)
+    # one view per (sequence, camera, time, params): questions repeating a frame share it (read-only)
+    memo = seq.__dict__.setdefault("_derived_memo", {})
+    key = ("grounding_view", camera, float(t), json.dumps(p, sort_keys=True, default=str))
+    if key not in memo:
+        if source == "ScanNet":
+            memo[key] = scannet_view(seq, t, p)
+        elif source == "Waymo":
+            memo[key] = waymo_view(seq, int(camera), t, p)
+        else:
+            memo[key] = rope_view(seq, t, p)
+    return memo[key]
 
 
 # ================================================================================== diagnosis

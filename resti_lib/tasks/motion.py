@@ -88,40 +88,56 @@ def camera_subject(view: SceneView) -> Subject:
                    {"kind": "camera"}, files)
 
 
+def _memo(view: SceneView) -> dict:
+    """Derived data kept on the opened sequence (shared by every question on it)."""
+    return view.seq.__dict__.setdefault("_derived_memo", {})
+
+
 def _track(view: SceneView, oid: str) -> PoseTrack:
-    cache = view.__dict__.setdefault("_tracks", {})
-    if oid not in cache:
-        cache[oid] = view.seq.object_track(oid)
-    return cache[oid]
+    cache = _memo(view)
+    key = ("object_track", oid)
+    if key not in cache:
+        cache[key] = view.seq.object_track(oid)
+    return cache[key]
 
 
 def _cam_track(view: SceneView) -> PoseTrack:
-    cache = view.__dict__.setdefault("_tracks", {})
-    key = ("camera", view.camera)
+    cache = _memo(view)
+    key = ("camera_track", view.camera)
     if key not in cache:
         cache[key] = view.seq.camera_track(view.camera)
     return cache[key]
+
+
+def _visible_samples(view: SceneView, tr: PoseTrack) -> np.ndarray:
+    """Per sample of the track: is the box visible in the video's camera (computed once per track)."""
+    cache = _memo(view)
+    key = ("visible_samples", tr.name, view.camera, view.near, view.far, view.min_fraction)
+    if key in cache:
+        return cache[key]
+    cam = _cam_track(view)
+    intr = view.seq.camera_calibration(view.camera)
+    k = intr["intrinsics"]
+    intr = {"fx": k["f_u"], "fy": k["f_v"], "cx": k["c_u"], "cy": k["c_v"], "width": intr["width"],
+            "height": intr["height"]}
+    Tc, _ = G.pose_at(cam, tr.times, "linear", G.DEFAULT_TOL, errors="nan")
+    vis = np.zeros(len(tr.times), dtype=bool)
+    for i in range(len(tr.times)):
+        if not np.isfinite(Tc[i]).all():
+            continue
+        b = box_from(tr.T[i, :3, 3], tr.T[i, :3, :3], tr.meta["size"][i])
+        v = box_visibility(in_camera(b, Tc[i]), intr, near=view.near, far=view.far, min_fraction=view.min_fraction)
+        vis[i] = bool(v["visible"])
+    cache[key] = vis
+    return vis
 
 
 def visible_in_interval(view: SceneView, tr: PoseTrack, t0: float, t1: float) -> dict:
     """How many of the track's samples inside ``[t0, t1]`` are visible in the video's camera."""
     tol = 1e-3
     idx = np.flatnonzero((tr.times >= t0 - tol) & (tr.times <= t1 + tol))
-    cam = _cam_track(view)
-    intr = view.seq.camera_calibration(view.camera)
-    k = intr["intrinsics"]
-    intr = {"fx": k["f_u"], "fy": k["f_v"], "cx": k["c_u"], "cy": k["c_v"], "width": intr["width"],
-            "height": intr["height"]}
-    Tc, _ = G.pose_at(cam, tr.times[idx], "linear", G.DEFAULT_TOL, errors="nan")
-    n_vis = 0
-    for j, i in enumerate(idx):
-        if not np.isfinite(Tc[j]).all():
-            continue
-        size = tr.meta["size"][i]
-        b = box_from(tr.T[i, :3, 3], tr.T[i, :3, :3], size)
-        v = box_visibility(in_camera(b, Tc[j]), intr, near=view.near, far=view.far, min_fraction=view.min_fraction)
-        n_vis += bool(v["visible"])
-    return {"n_samples": int(idx.size), "n_visible": int(n_vis)}
+    vis = _visible_samples(view, tr)
+    return {"n_samples": int(idx.size), "n_visible": int(vis[idx].sum())}
 
 
 def _covers(tr: PoseTrack, t0: float, t1: float, tol: float = 0.06) -> bool:

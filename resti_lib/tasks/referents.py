@@ -475,12 +475,24 @@ class SceneView:
 
     # -- sequence-level instances
     def all_instances(self) -> list[Instance]:
-        """Every instance of the sequence (ScanNet instances, Waymo tracks, ROPE objects)."""
+        """Every instance of the sequence (ScanNet instances, Waymo tracks, ROPE objects).
+
+        Computed once per opened sequence (kept on the sequence object, which the source context
+        caches), not once per question.
+        """
         if self._all is not None:
             return self._all
+        memo = self.seq.__dict__.setdefault("_derived_memo", {})
+        if "all_instances" in memo:
+            self._all = memo["all_instances"]
+            return self._all
+        self._all = memo["all_instances"] = self._build_instances()
+        return self._all
+
+    def _build_instances(self) -> list[Instance]:
         if self.source == "ScanNet":
-            self._all = scannet_instances(self.seq)
-        elif self.source == "Waymo":
+            return scannet_instances(self.seq)
+        if self.source == "Waymo":
             df = self.seq.lidar_boxes
             out = []
             for oid, g in df.groupby("id", sort=True):
@@ -489,15 +501,13 @@ class SceneView:
                                     "Waymo track (median box size)", size, WAYMO_DIMS,
                                     {"t_first": float(g["t"].min()), "t_last": float(g["t"].max()),
                                      "n_frames": len(g)}))
-            self._all = out
-        else:
-            out = []
-            for oid, d in sorted(omni_instances(self.seq).items()):
-                out.append(Instance(str(oid), str(d["class_name"]), box_from(np.zeros(3), np.eye(3), d["lwh"]),
-                                    "ROPE object (dimensions only)", np.asarray(d["lwh"], float), OMNI_DIMS,
-                                    {"frames": [d["frames"][0], d["frames"][-1]], "n_frames": len(d["frames"])}))
-            self._all = out
-        return self._all
+            return out
+        out = []
+        for oid, d in sorted(omni_instances(self.seq).items()):
+            out.append(Instance(str(oid), str(d["class_name"]), box_from(np.zeros(3), np.eye(3), d["lwh"]),
+                                "ROPE object (dimensions only)", np.asarray(d["lwh"], float), OMNI_DIMS,
+                                {"frames": [d["frames"][0], d["frames"][-1]], "n_frames": len(d["frames"])}))
+        return out
 
     def labels(self) -> list[str]:
         return sorted({i.label for i in self.all_instances()})

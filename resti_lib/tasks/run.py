@@ -52,8 +52,8 @@ class TaskRun:
 
 
 def legacy_rows_of(task: str, legacy_path) -> tuple[pd.DataFrame, list]:
-    df, problems = load_legacy(paths.resolve(legacy_path), strict=False)
-    return df, problems
+    """The legacy rows of one task (non-strict: problems come back as records, rows are kept)."""
+    return load_legacy(paths.resolve(legacy_path), strict=False, tasks=[task])
 
 
 def run_task(task: str, params: dict) -> TaskRun:
