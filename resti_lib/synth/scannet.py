@@ -426,6 +426,12 @@ def _camera_path(
             continue
         s = smoothstep((t[m] - (starts[k + 1] - 1.5)) / 1.5)[:, None]
         look[m] = a * (1 - s) + b * s
+    # the gaze wanders around the target (a camera held by a person never centres an object exactly;
+    # exact centring would put object centres on the optical axis, printed as 0.0)
+    wander = np.stack([0.18 * np.sin(2 * math.pi * t / rng.uniform(3, 6) + rng.uniform(0, 6)),
+                       0.18 * np.sin(2 * math.pi * t / rng.uniform(3, 6) + rng.uniform(0, 6)),
+                       0.10 * np.sin(2 * math.pi * t / rng.uniform(3, 6) + rng.uniform(0, 6))], axis=1)
+    look = look + wander
     tilt = np.radians(6.0) * np.sin(2 * math.pi * t / rng.uniform(5, 9) + rng.uniform(0, 6))
     roll = np.radians(3.0) * np.sin(2 * math.pi * t / rng.uniform(4, 8) + rng.uniform(0, 6))
     poses = np.zeros((n, 4, 4))
