@@ -27,7 +27,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from resti_lib.errors import InputError
+from resti_lib.errors import ContractError, InputError
 from resti_lib.geometry.frames import apply_T, check_rotation, invert_T, make_T, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 
@@ -630,17 +630,18 @@ class ScanNetScene:
 
         Raises
         ------
-        InputError
-            Frame absent, or its pose is invalid (``-inf``/NaN), naming the pose file and field.
+        ContractError
+            Frame absent, or its pose is invalid (``-inf``/NaN), naming the pose file and field: the
+            files are fine, the question asks a time the source cannot answer (a per-question outcome).
         """
         frames, T, src, files = self._poses
         k = np.searchsorted(frames, frame)
         if k >= frames.size or frames[k] != frame:
-            raise InputError(f"no pose for frame {frame}", file=src, row=int(frame), field="camera_to_world")
+            raise ContractError(f"file {src}, row {int(frame)}, field 'camera_to_world': no pose for frame {frame}")
         if not np.isfinite(T[k]).all():
             f = files[k] if files else src
-            raise InputError("invalid (non-finite) camera pose", file=f, row=int(frame),
-                             field="pose" if files else "camera_to_world")
+            fld = "pose" if files else "camera_to_world"
+            raise ContractError(f"file {f}, row {int(frame)}, field {fld!r}: invalid (non-finite) camera pose")
         return T[k].copy()
 
     @cached_property

@@ -1,0 +1,94 @@
+"""Corrupted inputs: rows excluded for a stated reason, or one clear error naming file and field;
+never a partial release."""
+
+import json
+import os
+import shutil
+
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from resti_lib import TASKS
+from resti_lib.errors import InputError
+from resti_lib.release import assemble
+from resti_lib.tasks.run import run_task
+
+
+def _params(w, out):
+    return {"legacy_benchmark": str(w / "legacy" / "qa.parquet"), "scannet_root": str(w / "scannet" / "scans"),
+            "waymo_root": str(w / "waymo"), "omni6d_root": str(w / "omni6d"), "scannet_fps": 30, "omni6d_fps": 30,
+            "video_map": "", "seed": 0, "output_dir": str(out)}
+
+
+@pytest.fixture
+def world(miniworld, tmp_path):
+    w = tmp_path / "w"
+    shutil.copytree(miniworld, w)
+    return w
+
+
+def test_malformed_legacy_rows_are_excluded_with_a_reason(world, tmp_path):
+    qa = world / "legacy" / "qa.parquet"
+    df = pd.read_parquet(qa)
+    n = len(df)
+    bad = {}
+    i = df.index[df["Task"] == "Displacement & Path Length"][0]
+    df.loc[i, "Candidates"] = '{"A": "1.00m", "B": '          # truncated Candidates JSON
+    bad[i] = "Candidates"
+    j = df.index[df["Task"] == "Speed & Acceleration"][0]
+    c = json.loads(df.loc[j, "Candidates"]); c.pop("E")
+    df.loc[j, "Candidates"] = json.dumps(c)                    # four candidates
+    bad[j] = "Candidates"
+    k = df.index[df["Task"] == "Pose Estimation"][0]
+    df.loc[k, "time_end"] = float("nan")                       # non-finite time
+    bad[k] = "time_end"
+    u = df.index[df["Task"] == "Dimensional Measurement"][0]
+    df.loc[u, "Task"] = "Depth Guessing"                       # unknown task
+    bad[u] = "Task"
+    df.to_parquet(qa)
+    out = tmp_path / "out"
+    params = _params(world, out)
+    for task in TASKS:
+        run_task(task, params)
+    v = assemble(qa, out / "tasks", out / "release")
+    exc = [json.loads(line) for line in (out / "release" / "excluded.jsonl").read_text().splitlines()]
+    acc = (out / "release" / "resti.jsonl").read_text().splitlines()
+    assert len(acc) + len(exc) == n and v["passed"]
+    prov = pd.read_parquet(out / "release" / "provenance.parquet").set_index("row")
+    for row, field in bad.items():
+        assert prov.loc[row, "verdict"] == "excluded"
+        assert json.loads(prov.loc[row, "reasons"]) == ["malformed_row"]
+        rec = next(e for e in exc if e["key"] == prov.loc[row, "key"])
+        assert rec["verification_evidence"]["field"] == field
+
+
+def test_truncated_sens_is_one_clear_error(world, tmp_path):
+    sens = sorted((world / "scannet" / "scans").glob("*/*.sens"))[0]
+    os.truncate(sens, sens.stat().st_size // 2)
+    params = _params(world, tmp_path / "out")
+    for task in ("3D Video Grounding", "Ego-Centric Orientation", "Pose Estimation"):
+        with pytest.raises(InputError) as e:
+            run_task(task, params)
+        assert e.value.file == str(sens) and e.value.field == "num_frames"
+    assert not (tmp_path / "out" / "release").exists()
+
+
+def test_waymo_parquet_missing_a_column(world, tmp_path):
+    p = sorted((world / "waymo" / "vehicle_pose").glob("*.parquet"))[0]
+    t = pq.read_table(p)
+    pq.write_table(t.drop(["[VehiclePoseComponent].world_from_vehicle.transform"]), p)
+    with pytest.raises(InputError) as e:
+        run_task("Trajectory Description", _params(world, tmp_path / "out"))
+    assert e.value.file == str(p) and "world_from_vehicle" in e.value.field
+
+
+def test_rope_zero_norm_quaternion(world, tmp_path):
+    scene = sorted((world / "omni6d" / "ROPE").iterdir())[0]
+    meta = sorted(scene.glob("*_meta.json"))[0]
+    m = json.loads(meta.read_text())
+    m["camera"]["quaternion"] = [0.0, 0.0, 0.0, 0.0]
+    meta.write_text(json.dumps(m))
+    with pytest.raises(InputError) as e:
+        run_task("Pose Estimation", _params(world, tmp_path / "out"))
+    assert e.value.file == str(meta) and "quaternion" in e.value.field
