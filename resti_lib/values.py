@@ -350,6 +350,13 @@ def _r(x: float, d: int) -> float:
     return v
 
 
+def format_seconds(t: float) -> str:
+    """A time in question text: the shortest exact decimal of ``t`` rounded to 1 µs (``0``, ``16``,
+    ``19.7``, ``19.800018``); never ``-0``."""
+    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
+    return "0" if s in ("", "-0") else s
+
+
 def format_scalar(value: float, unit: str, decimals: int = 2) -> str:
     """``format_scalar(0.4512, "m") == "0.45m"``; units glued on as in the benchmark."""
     if unit not in _UNITS:
@@ -432,5 +439,5 @@ def is_numeric(v: Value) -> bool:
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
     "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
-    "format_trajectory", "box_heading", "wrap_degrees", "NO_MOVEMENT", "RELATION_LABELS",
+    "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "NO_MOVEMENT", "RELATION_LABELS",
 ]

@@ -98,3 +98,8 @@ def test_unreadable_values_name_row_and_field(bad):
 def test_nan_parses_but_is_not_finite():
     v = V.parse("nanm")
     assert isinstance(v, V.Scalar) and not v.finite()
+
+
+def test_format_seconds():
+    assert [V.format_seconds(t) for t in (0.0, -0.0000001, 16.0, 19.7, 19.8000184, 143.3)] == \
+        ["0", "0", "16", "19.7", "19.800018", "143.3"]

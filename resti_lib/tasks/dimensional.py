@@ -34,6 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from .. import values as V
 from ..adjudicate import verdict_for
 from ..contract import parse_question
 from ..errors import ContractError
@@ -44,7 +45,6 @@ from .scalar_audit import (
     Excluded,
     agrees_si,
     compare,
-    fmt_t,
     new_outcome,
     question_defects,
     rule_for,
@@ -365,10 +365,10 @@ def _question(c: dict, source: str, unit: str, t: float) -> str:
         return (f"What is the {c['params']['dimension']} of {_np(c['entity'].get('description'))}? "
                 f"{DIM_WORDING[source]} (unit: {unit})")
     if op == "distance_to_camera":
-        return (f"At t={fmt_t(t)} s, what is the distance from the camera to the nearest point of the bounding box "
+        return (f"At t={V.format_seconds(t)} s, what is the distance from the camera to the nearest point of the bounding box "
                 f"of {_np(c['entity'].get('description'))}? (unit: {unit})")
     a, b = (c["entity"].get("descriptions") or ["object", "object"])[:2]
-    when = f"At t={fmt_t(t)} s, what" if source == "Waymo" else "What"
+    when = f"At t={V.format_seconds(t)} s, what" if source == "Waymo" else "What"
     return (f"{when} is the minimum surface-to-surface distance between the bounding boxes of {_np(a)} and "
             f"{_np(b)}? (unit: {unit})")
 

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from .. import values as V
 from ..adjudicate import verdict_for
 from ..contract import parse_question
 from ..errors import ContractError
@@ -37,7 +38,6 @@ from .referents import SceneView
 from .scalar_audit import (
     Excluded,
     compare,
-    fmt_t,
     new_outcome,
     question_defects,
     rule_for,
@@ -83,7 +83,7 @@ def _subject_phrase(subj, desc: str | None) -> str:
 
 
 def question_text(op: str, subject: str, t0: float, t1: float) -> str:
-    return f"What is the {WORDING[op]} of {subject} between t={fmt_t(t0)} s and t={fmt_t(t1)} s? (unit: {UNIT})"
+    return f"What is the {WORDING[op]} of {subject} between t={V.format_seconds(t0)} s and t={V.format_seconds(t1)} s? (unit: {UNIT})"
 
 
 def audit_row(r: dict, ctx, params: dict, views: dict) -> Outcome:

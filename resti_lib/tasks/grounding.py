@@ -715,11 +715,6 @@ def _parse_legacy(row: dict) -> tuple[V.Box | None, str | None]:
     return v, None
 
 
-def _t_text(t: float) -> str:
-    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
-    return s if s else "0"
-
-
 def _noun_phrase(desc: str) -> str:
     """``"A white utility truck"`` -> ``"the white utility truck"``; acronyms keep their case."""
     d = re.sub(r"^(?:a|an|the)\s+", "", " ".join(str(desc).split()).rstrip("."), flags=re.IGNORECASE)
@@ -733,11 +728,11 @@ def rewrite_question(source: str, description: str, view: FrameView) -> str:
     """The repaired question: time (and frame), target, frame axes, and the answer fields."""
     what = f"what is the oriented 3D bounding box of {_noun_phrase(description)}"
     if source == "ScanNet":
-        return (f"At {_t_text(view.t)} seconds (zero-based source frame {view.frame['frame']} at "
+        return (f"At {V.format_seconds(view.t)} seconds (zero-based source frame {view.frame['frame']} at "
                 f"{view.frame['fps']:g} FPS), {what} in the ScanNet OpenCV camera frame {AXES}? {QUESTION_TAIL}")
     if source == "Waymo":
         cam = CAMERA_NAMES.get(int(view.camera), str(view.camera))
-        return (f"At {_t_text(view.t)} seconds, {what} in the OpenCV frame of the {cam} camera {AXES}? "
+        return (f"At {V.format_seconds(view.t)} seconds, {what} in the OpenCV frame of the {cam} camera {AXES}? "
                 f"{QUESTION_TAIL}")
     return (f"At zero-based source frame {view.frame['frame']} ({view.frame['fps']:g} FPS; video timestamp "
             f"{view.t:.6f} seconds), {what} in the OpenCV camera frame {AXES}? {QUESTION_TAIL}")

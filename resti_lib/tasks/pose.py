@@ -78,12 +78,6 @@ def _p(params: dict, key: str):
     return DEFAULTS[key] if v is None else v
 
 
-def _t(t: float) -> str:
-    """Question-text time: the shortest exact decimal (``0``, ``16``, ``10.5``)."""
-    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
-    return s if s not in ("", "-0") else "0"
-
-
 def _vec(T: np.ndarray) -> np.ndarray:
     """The 12 printed entries ``tx, ty, tz, r11 .. r33`` of pose(s) ``[..., 4, 4]``."""
     T = np.asarray(T, float)
@@ -211,13 +205,13 @@ def resolve_premise(track: PoseTrack, premise: dict | None, candidates: list[flo
 def question_text(source: str, t0: float, t1: float, premise_text: str | None) -> str:
     """The rewritten question: premise and target times, world frame, axes, matrix direction, unit."""
     if source == "Omni6DPose":
-        return (f"Taking the camera pose at t={_t(t0)} s as the identity and expressing the result in the OpenCV "
+        return (f"Taking the camera pose at t={V.format_seconds(t0)} s as the identity and expressing the result in the OpenCV "
                 f"camera frame of that instant (+X right, +Y down, +Z forward; translation in meters), what is "
-                f"the camera pose at t={_t(t1)} s, as the camera-to-reference matrix (mapping camera "
-                f"coordinates at t={_t(t1)} s into that frame)?")
+                f"the camera pose at t={V.format_seconds(t1)} s, as the camera-to-reference matrix (mapping camera "
+                f"coordinates at t={V.format_seconds(t1)} s into that frame)?")
     extra = " (vehicle pose composed with the camera extrinsic)" if source == "Waymo" else ""
-    return (f"Given the camera pose at t={_t(t0)} s in the {WORLD[source]}: {premise_text}, what is the camera "
-            f"pose in the same coordinate frame at t={_t(t1)} s? Poses are camera-to-world matrices{extra} "
+    return (f"Given the camera pose at t={V.format_seconds(t0)} s in the {WORLD[source]}: {premise_text}, what is the camera "
+            f"pose in the same coordinate frame at t={V.format_seconds(t1)} s? Poses are camera-to-world matrices{extra} "
             f"with OpenCV camera axes (+X right, +Y down, +Z forward); translation in meters.")
 
 

@@ -71,11 +71,6 @@ def _p(params: dict, key: str):
     return DEFAULTS[key] if v is None else v
 
 
-def _t(t: float) -> str:
-    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
-    return s if s not in ("", "-0") else "0"
-
-
 def _circ(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
@@ -177,7 +172,7 @@ def question_text(source: str, *, a: str | None = None, b: str | None = None, t:
         return ("What is the orientation of the camera mounted on the moving car relative to the car's forward "
                 "direction? The answer is the horizontal direction of the camera's optical axis in the car's "
                 "frame.")
-    return (f"Viewed from the camera at t={_t(t)} s: relative to the {b}, is the {a} to the left, to the right, "
+    return (f"Viewed from the camera at t={V.format_seconds(t)} s: relative to the {b}, is the {a} to the left, to the right, "
             f"closer to the camera, farther from the camera, or directly above? Choose the single dominant "
             f"relation. Left and right are along the image's horizontal axis, closer and farther along the "
             f"camera's optical axis.")
@@ -259,7 +254,7 @@ def _audit_omni(o: Outcome, r: dict, c, vs, ctx, params: dict) -> Outcome:
     except ContractError as e:
         o.contract = c.to_dict()
         return o.exclude("not_visible_at_frame", t=t, detail=str(e))
-    c.frame = f"OpenCV camera frame at t={_t(t)} s (frame {frame})"
+    c.frame = f"OpenCV camera frame at t={V.format_seconds(t)} s (frame {frame})"
     o.contract = c.to_dict()
     o.frames = {"frame": frame, "t": t}
     intr = rp.intrinsics(frame)

@@ -38,12 +38,6 @@ class Excluded(Exception):
         return o.exclude(self.reason, **self.evidence)
 
 
-def fmt_t(t: float) -> str:
-    """Question-text time: the shortest exact decimal of ``t`` rounded to 1 µs (``12``, ``12.5``)."""
-    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
-    return "0" if s in ("", "-0") else s
-
-
 def new_outcome(r: dict, task: str) -> Outcome:
     """An outcome for a legacy row (verdict filled in later)."""
     return Outcome(row=int(r["row"]), key=str(r["Legacy Row Key"]), task=task, source=str(r["Source"]),
@@ -200,3 +194,4 @@ def attack_summary(accepted: list[dict], *, alpha: float = 0.05) -> pd.DataFrame
     if not accepted:
         return pd.DataFrame()
     return attack_table(accepted, alpha=alpha)
+

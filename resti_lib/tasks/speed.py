@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .. import values as V
 from ..adjudicate import verdict_for
 from ..contract import parse_question
 from ..errors import ContractError
@@ -46,7 +47,6 @@ from .scalar_audit import (
     Excluded,
     agrees_si,
     compare,
-    fmt_t,
     new_outcome,
     question_defects,
     rule_for,
@@ -146,7 +146,7 @@ def _subject_text(subj, desc: str | None) -> str:
 
 
 def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | None = None) -> str:
-    span = f"between t={fmt_t(t0)} s and t={fmt_t(t1)} s"
+    span = f"between t={V.format_seconds(t0)} s and t={V.format_seconds(t1)} s"
     if op == "average_velocity":
         return (f"What is the magnitude of the average velocity of {subject} {span}, computed as straight-line "
                 f"endpoint displacement divided by elapsed time? (unit: m/s)")

@@ -65,12 +65,6 @@ def _p(params: dict, key: str):
     return DEFAULTS[key] if v is None else v
 
 
-def _t(t: float) -> str:
-    """Question-text time: the shortest exact decimal (``0``, ``19.7``, ``19.800018``)."""
-    s = f"{round(float(t), 6):.6f}".rstrip("0").rstrip(".")
-    return s if s not in ("", "-0") else "0"
-
-
 # ------------------------------------------------------------------------------------ operator
 
 
@@ -235,8 +229,8 @@ def _new(r: dict) -> Outcome:
 
 def question_text(t0: float, t1: float) -> str:
     """The rewritten question (v5 wording): interval, path-length distances, net-heading turns."""
-    return (f"Which option best describes the camera's movement trajectory between t={_t(t0)} s and "
-            f"t={_t(t1)} s? Distances are path lengths along the trajectory and turns are net heading changes.")
+    return (f"Which option best describes the camera's movement trajectory between t={V.format_seconds(t0)} s and "
+            f"t={V.format_seconds(t1)} s? Distances are path lengths along the trajectory and turns are net heading changes.")
 
 
 def _kw(params: dict) -> dict:
