@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import OrderedDict
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -615,22 +616,31 @@ def rope_view(rope, t: float, p: dict) -> FrameView:
                      "T_cam<-obj (ROPE pose, verified convention, OpenCV axes)", labels)
 
 
+VIEW_CACHE = 64  # frame views kept per sequence
+
+
 def open_view(ctx: SourceContext, source: str, sequence: str, camera: int | None, t: float, p: dict) -> FrameView:
     """The :class:`FrameView` of a row's sequence at ``t``."""
     if source == "Waymo" and camera is None:
         raise ContractError("Waymo video without a camera number")
     seq = {"ScanNet": ctx.scannet, "Waymo": ctx.waymo, "Omni6DPose": ctx.rope}[source](sequence)
-    # one view per (sequence, camera, time, params): questions repeating a frame share it (read-only)
-    memo = seq.__dict__.setdefault("_derived_memo", {})
-    key = ("grounding_view", camera, float(t), json.dumps(p, sort_keys=True, default=str))
-    if key not in memo:
-        if source == "ScanNet":
-            memo[key] = scannet_view(seq, t, p)
-        elif source == "Waymo":
-            memo[key] = waymo_view(seq, int(camera), t, p)
-        else:
-            memo[key] = rope_view(seq, t, p)
-    return memo[key]
+    # questions repeating a frame share its view (read-only); the most recent VIEW_CACHE views are
+    # kept per sequence, so memory stays bounded however many questions there are
+    memo = seq.__dict__.setdefault("_derived_memo", {}).setdefault("grounding_views", OrderedDict())
+    key = (camera, float(t), json.dumps(p, sort_keys=True, default=str))
+    if key in memo:
+        memo.move_to_end(key)
+        return memo[key]
+    if source == "ScanNet":
+        view = scannet_view(seq, t, p)
+    elif source == "Waymo":
+        view = waymo_view(seq, int(camera), t, p)
+    else:
+        view = rope_view(seq, t, p)
+    memo[key] = view
+    if len(memo) > VIEW_CACHE:
+        memo.popitem(last=False)
+    return view
 
 
 # ================================================================================== diagnosis
