@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PARAMS ?= params/default.yaml
 
-.PHONY: help venv report reoption test bench screenshot lint clean strip-notebooks
+.PHONY: help venv report reoption test bench bench-scale screenshot lint clean strip-notebooks
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -28,8 +28,11 @@ reoption: $(STAMP)  ## rebuild the options of the public ReSTI v5 release (noteb
 test: $(STAMP)  ## run the test suite (real-data tests need ../shared or RESTI_SHARED)
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)  ## speed benchmarks (ratios and throughput)
+bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, default run
 	$(BIN)/python -m bench
+
+bench-scale: $(STAMP)  ## scale benchmark: the 2,064-row structure and 100x (about 206k rows, ~10 min)
+	$(BIN)/python -m bench bench_scale
 
 screenshot: $(STAMP)  ## render outputs/report/index.html in headless Chromium and save a PNG
 	$(BIN)/python -m bench.screenshot

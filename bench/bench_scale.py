@@ -58,7 +58,7 @@ def run_scale(scale: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    scales = [int(x) for x in (argv if argv is not None else sys.argv[1:])] or [1, 100]
+    scales = [int(x) for x in (argv or [])] or [1, 100]
     res = [run_scale(s) for s in scales]
     print("scale    rows   generate   audit+release   rows/s   peak MB   accepted/excluded")
     for r in res:
@@ -73,4 +73,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -43,7 +43,7 @@ _DEFECTS = [
            "the referent is not visible at the asked frame"),
     Defect("unit_tag_missing", "question", "unit tag",
            "the question does not state the unit of the answer"),
-    Defect("statistic_unnamed", "question", "ambiguous subject",
+    Defect("statistic_unnamed", "question", "unnamed statistic",
            "a rate question names 'average speed' but the value is displacement / time"),
     # source layer
     Defect("grounding_alignment_omitted", "source", "source geometry",
@@ -74,6 +74,11 @@ _DEFECTS = [
 ]
 
 DEFECTS: dict[str, Defect] = {d.code: d for d in _DEFECTS}
+
+# The report's six construction-defect categories of the released questions and options (audit
+# overview, panel b); source-level geometric and temporal failures are counted separately.
+REPORT_CATEGORIES = ("key-detail mismatch", "duplicate options", "omitted time", "unnamed frame",
+                     "ambiguous subject", "unit tag")
 
 # Exclusion reasons (a row ends excluded with one or more of these, plus evidence).
 REASONS: dict[str, str] = {

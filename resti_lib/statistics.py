@@ -12,7 +12,7 @@ from collections import Counter
 import pandas as pd
 
 from . import SOURCES, TASKS
-from .defects import DEFECTS
+from .defects import DEFECTS, REPORT_CATEGORIES
 
 VERDICT_ORDER = ("retained", "corrected", "re-contracted", "excluded")
 QUESTION_DEFECTS = ("pose_time_omitted", "ambiguous_subject", "unnamed_frame", "unit_tag_missing",
@@ -101,10 +101,12 @@ def source_defect_table(prov: pd.DataFrame) -> pd.DataFrame:
     return _defect_counts(prov, SOURCE_DEFECTS)
 
 
-def defect_category_table(prov: pd.DataFrame) -> pd.DataFrame:
-    """Defect reports per category (one row can report several); share of all reports."""
+def defect_category_table(prov: pd.DataFrame, categories=REPORT_CATEGORIES) -> pd.DataFrame:
+    """Defect reports in the report's six construction-defect categories (one row can report
+    several); share of the sum of these reports, not of the questions."""
     d = _defects(prov)
     c = Counter(DEFECTS[x].category for x in d["defect"] if x in DEFECTS)
+    c = Counter({k: c.get(k, 0) for k in categories})
     total = sum(c.values())
     rows = [{"category": k, "reports": n, "share": n / total if total else 0.0} for k, n in c.most_common()]
     return pd.DataFrame(rows, columns=["category", "reports", "share"])
