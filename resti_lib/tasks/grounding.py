@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections import OrderedDict
 import re
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
