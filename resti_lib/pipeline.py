@@ -30,8 +30,19 @@ def stage_params(stage: dict, common: dict) -> tuple[Path, dict]:
     return nb, merged
 
 
+def _generator_stamp(seed: int) -> str:
+    """sha256 of the generator's source files and the seed: a world made by other code is stale."""
+    import hashlib
+
+    h = hashlib.sha256(f"seed={seed}".encode())
+    for f in sorted((paths.ROOT / "resti_lib" / "synth").glob("*.py")):
+        h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()
+
+
 def ensure_world(cfg: dict) -> Path | None:
-    """Generate the embedded mini-world when the params point at it and it is absent.
+    """Generate the embedded mini-world when the params point at it and it is absent or was made by
+    another version of the generator (or another seed).
 
     The orchestrator only *creates input data* here; the audit itself never imports the generator
     nor reads its manifest.
@@ -40,13 +51,17 @@ def ensure_world(cfg: dict) -> Path | None:
     if not world:
         return None
     world = paths.resolve(world)
-    if (world / "legacy" / "qa.parquet").exists():
+    seed = int(cfg.get("world_seed", 0))
+    stamp_file = world / ".generator_stamp"
+    stamp = _generator_stamp(seed)
+    if (world / "legacy" / "qa.parquet").exists() and stamp_file.exists() and stamp_file.read_text() == stamp:
         return world
     from .synth import generate
 
     t0 = time.perf_counter()
     print(f"resti run: generating the mini-world in {world} ...", file=sys.stderr)
-    generate(world, seed=int(cfg.get("world_seed", 0)))
+    generate(world, seed=seed)
+    stamp_file.write_text(stamp)
     print(f"resti run: mini-world ready ({time.perf_counter() - t0:.1f}s)", file=sys.stderr)
     return world
 
