@@ -703,9 +703,13 @@ def build_row(p: RowPlan, record: dict, *, seed: int, options: dict, populations
     return cands, letter, dict(opts.evidence)
 
 
-def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None = None
-                     ) -> tuple[list[dict], pd.DataFrame]:
-    """New rows (same order, same fields; Candidates and Answer rebuilt) and per-row evidence."""
+def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None = None,
+                     keep_on_failure: bool = False) -> tuple[list[dict], pd.DataFrame]:
+    """New rows (same order, same fields; Candidates and Answer rebuilt) and per-row evidence.
+
+    ``keep_on_failure``: a row whose options cannot be built under the constraints keeps its
+    Candidates and Answer (evidence ``kept``) instead of stopping the whole rebuild.
+    """
     options = merge_options(options)
     plans, pops = plan_rows(records, seed=seed, options=options)
     by_id = {p.rid: p for p in plans}
@@ -714,7 +718,12 @@ def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None
         try:
             cands, letter, e = build_row(p, r, seed=seed, options=options, populations=pops, by_id=by_id)
         except B.OptionError as err:
-            raise ReoptionError(f"{p.rid} ({p.task}, {p.source}): {err}") from None
+            if not keep_on_failure:
+                raise ReoptionError(f"{p.rid} ({p.task}, {p.source}): {err}") from None
+            out.append(dict(r))
+            ev.append({"rid": p.rid, "task": p.task, "source": p.source, "kind": p.kind, "group": p.group,
+                       "kept": True, "problem": str(err)})
+            continue
         new = dict(r)
         new["Candidates"] = cands
         new["Answer"] = letter

@@ -329,16 +329,21 @@ def learned_picks(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None
 
 
 def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
-                              learned: LearnedConfig | None | bool = None) -> pd.DataFrame:
+                              learned: LearnedConfig | None | bool = None, groups: dict | None = None
+                              ) -> pd.DataFrame:
     """The rule attacks' table with ``learned_blind`` appended before the binomial tests and Holm.
 
     ``learned=False`` leaves the learned attacker out (the plain :func:`attacks.attack_table`).
+    ``groups`` maps a row's Legacy Row Key to its cross-validation group (e.g. its source sequence,
+    so the camera videos of one Waymo segment, which share ego answers, never straddle train and
+    test); rows not in it are grouped by ``Video``.
     """
     rows = parse_rows(records)
     picks = run_picks(rows, attacks)
     if learned is not False:
         cfg = learned if isinstance(learned, LearnedConfig) else LearnedConfig()
-        videos = [r.get("Video") for r in records]
+        groups = groups or {}
+        videos = [groups.get(r.get("Legacy Row Key"), r.get("Video")) for r in records]
         picks = pd.concat([picks, learned_picks(rows, videos, cfg)], ignore_index=True)
     tests = {n: 5 if n == "constant_letter" else 1 for n in list(ATTACKS) + [NAME]}
     return summarize_picks(picks, alpha=alpha, tests=tests)
