@@ -160,6 +160,45 @@ def test_duplicate_timestamp(tmp_path):
     assert e.value.field == W.KEY_MICROS
 
 
+def test_vehicle_pose_errors_name_the_file_row_among_other_segments(tmp_path):
+    # file rows 0-2: another segment; rows 3-5: SEG, written out of time order, row 5 repeats row 3's time
+    other = "9999999999_0000_000_0020_000"
+    bad = np.eye(4)
+    bad[0, 0] = 2.0  # not a rotation
+    micros = [T0, T0 + 1, T0 + 2, T0 + 200_000, T0 + 100_000, T0 + 200_000]
+    p = tmp_path / "vp.parquet"
+    pq.write_table(pa.table({W.KEY_SEGMENT: [other] * 3 + [SEG] * 3, W.KEY_MICROS: micros,
+                             W.VEHICLE_POSE: transform_col([np.eye(4)] * 6)}), p)
+    with pytest.raises(InputError) as e:
+        W.read_vehicle_pose(p, SEG)
+    assert e.value.field == W.KEY_MICROS and e.value.row == 5
+    pq.write_table(pa.table({W.KEY_SEGMENT: [other] * 3 + [SEG] * 3, W.KEY_MICROS: micros[:5] + [T0 + 300_000],
+                             W.VEHICLE_POSE: transform_col([np.eye(4)] * 4 + [bad, np.eye(4)])}), p)
+    with pytest.raises(InputError) as e:
+        W.read_vehicle_pose(p, SEG)
+    assert e.value.field == W.VEHICLE_POSE and e.value.row == 4
+
+
+def test_snapshot_far_from_box_frames_excludes_but_damaged_boxes_stop(tmp_path):
+    from resti_lib.errors import ContractError
+    from resti_lib.tasks.referents import SceneView
+
+    root = write_segment(tmp_path / "w")  # box frames at 0.0 .. 0.4 s
+    view = SceneView("Waymo", W.WaymoSegment(root, SEG), 1)
+    assert [i.id for i in view.snapshot(0.2).instances] == ["obj-a"]
+    with pytest.raises(ContractError):  # 0.1 s from the nearest box frame: one question, not the run
+        view.snapshot(0.5)
+    # the box frame at 0.2 s moved 1 us off its vehicle_pose frame: a damaged file, one clear error
+    p = root / "lidar_box" / f"{SEG}.parquet"
+    t = pq.read_table(p).to_pydict()
+    t[W.KEY_MICROS] = [m + (1 if m == T0 + 200_000 else 0) for m in t[W.KEY_MICROS]]
+    pq.write_table(pa.table(t), p)
+    view = SceneView("Waymo", W.WaymoSegment(root, SEG), 1)
+    with pytest.raises(InputError) as e:
+        view.snapshot(0.2)
+    assert e.value.file == str(p) and e.value.field == W.KEY_MICROS
+
+
 # ---------------------------------------------------------------------------------------------
 # the real file
 

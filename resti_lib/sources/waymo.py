@@ -170,9 +170,10 @@ def read_vehicle_pose(path: str | Path, segment: str | None = None, *, rotation_
     T = _transforms(tab, VEHICLE_POSE, path)[keep]
     order = np.argsort(micros, kind="stable")
     micros, T = micros[order], T[order]
+    file_rows = np.flatnonzero(keep)[order]  # row in the file of each sorted frame
     dup = np.flatnonzero(np.diff(micros) == 0)
     if dup.size:
-        raise InputError(f"duplicate frame timestamp {micros[dup[0]]}", file=path, row=int(order[dup[0] + 1]),
+        raise InputError(f"duplicate frame timestamp {micros[dup[0]]}", file=path, row=int(file_rows[dup[0] + 1]),
                          field=KEY_MICROS)
     fin = np.isfinite(T).all(axis=(1, 2))
     if fin.any():
@@ -180,7 +181,7 @@ def read_vehicle_pose(path: str | Path, segment: str | None = None, *, rotation_
         try:
             check_rotation(T[fin, :3, :3], tol=rotation_tol, field=VEHICLE_POSE)
         except InputError as e:
-            raise InputError(e.message, file=path, row=int(order[idx[e.row]]), field=VEHICLE_POSE) from None
+            raise InputError(e.message, file=path, row=int(file_rows[idx[e.row]]), field=VEHICLE_POSE) from None
     return micros, T
 
 
@@ -399,6 +400,18 @@ class WaymoSegment:
                                "speed": sel[["speed_x", "speed_y", "speed_z"]].to_numpy(),
                                "accel": sel[["accel_x", "accel_y", "accel_z"]].to_numpy()})
 
+    @cached_property
+    def box_frame_times(self) -> np.ndarray:
+        """Sorted segment times (s) of the frames that carry LiDAR boxes (empty when none)."""
+        return np.unique(self.lidar_boxes["t"].to_numpy())
+
+    def nearest_box_frame(self, t: float) -> float | None:
+        """Segment time of the box frame nearest ``t``; None when the segment has no box."""
+        frames = self.box_frame_times
+        if frames.size == 0:
+            return None
+        return float(frames[int(np.argmin(np.abs(frames - t)))])
+
     def boxes_at(self, t: float, *, tol: float = 1e-3) -> list[dict]:
         """Boxes of the frame at segment time ``t`` (the nearest frame within ``tol`` seconds).
 
@@ -407,14 +420,13 @@ class WaymoSegment:
         ``heading_world`` (rad, yaw of box +X in the world), ``speed``/``accel`` (vehicle frame).
         """
         df = self.lidar_boxes
-        if df.empty:
+        t_frame = self.nearest_box_frame(t)
+        if t_frame is None:
             return []
-        frames = np.unique(df["t"].to_numpy())
-        k = int(np.argmin(np.abs(frames - t)))
-        if abs(frames[k] - t) > tol:
-            raise InputError(f"no box frame within {tol} s of t={t} (nearest {frames[k]:.6f} s)",
+        if abs(t_frame - t) > tol:
+            raise InputError(f"no box frame within {tol} s of t={t} (nearest {t_frame:.6f} s)",
                              file=self.path("lidar_box"), field=KEY_MICROS)
-        sel = df[df["t"] == frames[k]]
+        sel = df[df["t"] == t_frame]
         T = self._box_world(sel)
         out = []
         for j, (_, r) in enumerate(sel.iterrows()):

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from ..errors import ContractError
+from ..errors import ContractError, InputError
 from ..geometry import trajectory as G
 from ..geometry.frames import apply_T, invert_T, make_T
 from ..sources.scannet import OrientedBox, upright_oriented_box
@@ -341,7 +341,10 @@ def scannet_camera_at(scene, t: float, tol: float | None = None) -> tuple[np.nda
                       "pose_file": track.source}
 
 
-def waymo_boxes_at(seg, t: float, *, tol: float = 0.06) -> list[Instance]:
+WAYMO_BOX_FRAME_TOL = 0.06  # seconds: a question time this close to a LiDAR frame reads that frame
+
+
+def waymo_boxes_at(seg, t: float, *, tol: float = WAYMO_BOX_FRAME_TOL) -> list[Instance]:
     """LiDAR boxes of the frame nearest ``t`` (world frame)."""
     out = []
     for b in seg.boxes_at(float(t), tol=tol):
@@ -532,10 +535,14 @@ class SceneView:
             return Snapshot(float(t), self.all_instances(), T, self.seq.intrinsics, "ScanNet raw scan frame",
                             {**ev, "files": [ev["pose_file"], str(self.seq.meta_path)]})
         if self.source == "Waymo":
-            try:
-                boxes = waymo_boxes_at(self.seq, t)
-            except Exception as e:  # noqa: BLE001 -- InputError: no box frame near t
-                raise ContractError(str(e)) from None
+            # reading lidar_box here lets a damaged file stop the run (InputError), never one question
+            near = self.seq.nearest_box_frame(float(t))
+            if near is not None and abs(near - float(t)) > WAYMO_BOX_FRAME_TOL:
+                far = InputError(f"no box frame within {WAYMO_BOX_FRAME_TOL} s of t={float(t)} "
+                                 f"(nearest {near:.6f} s)", file=self.seq.path("lidar_box"),
+                                 field="key.frame_timestamp_micros")
+                raise ContractError(str(far))
+            boxes = waymo_boxes_at(self.seq, t)
             t_frame = boxes[0].extra["t"] if boxes else float(t)
             T, ev = waymo_camera_at(self.seq, self.camera, t_frame)
             return Snapshot(float(t), boxes, T, ev["intrinsics"], "Waymo segment world frame",
