@@ -48,7 +48,7 @@ class TaskRun:
 
     @property
     def defects(self) -> pd.Series:
-        return pd.Series([d for o in self.outcomes for d in set(o.defects)], dtype=object).value_counts()
+        return pd.Series([d for o in self.outcomes for d in dict.fromkeys(o.defects)], dtype=object).value_counts()
 
 
 def legacy_rows_of(task: str, legacy_path) -> tuple[pd.DataFrame, list]:
@@ -78,10 +78,10 @@ def run_task(task: str, params: dict) -> TaskRun:
                                 legacy_detail=str(r.get("Answer Detail"))))
     records = {int(r["row"]): r for r in mine.to_dict("records")}
     shortcuts = group_shortcuts(list(records.values()))
-    row_order = list(records)
+    position = {row: i for i, row in enumerate(records)}  # group_shortcuts keys rows by list position
     for o in outcomes:
         d, ev = answer_layer_defects(records[o.row])
-        o.defects = list(dict.fromkeys([*o.defects, *d, *shortcuts.get(row_order.index(o.row), [])]))
+        o.defects = list(dict.fromkeys([*o.defects, *d, *shortcuts.get(position[o.row], [])]))
         if ev:
             o.evidence.setdefault("answer_layer", ev)
     result = finalize(outcomes, mine, seed=int(params.get("seed", 0)), option_params=params.get("options") or {})
