@@ -41,7 +41,7 @@ class Rule:
 
 
 def _ulp_si(v: V.Scalar) -> float:
-    return 0.5 * 10.0 ** -v.decimals * (v.si / v.value if v.value else 1.0)
+    return 0.5 * 10.0 ** -v.decimals * v.si_per_unit
 
 
 def same_quantity_agrees(legacy: V.Value, new: V.Value, rule: Rule) -> bool:

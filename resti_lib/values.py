@@ -95,6 +95,11 @@ class Scalar:
         return self.value * _UNITS[self.unit][1]
 
     @property
+    def si_per_unit(self) -> float:
+        """SI value of one ``unit`` (``0.01`` for cm), also when ``value`` is zero."""
+        return _UNITS[self.unit][1]
+
+    @property
     def is_angle(self) -> bool:
         return self.unit == "°"
 

@@ -103,3 +103,14 @@ def test_nan_parses_but_is_not_finite():
 def test_format_seconds():
     assert [V.format_seconds(t) for t in (0.0, -0.0000001, 16.0, 19.7, 19.8000184, 143.3)] == \
         ["0", "0", "16", "19.7", "19.800018", "143.3"]
+
+
+def test_comparison_rule_half_unit_of_a_zero_in_centimetres():
+    from resti_lib.adjudicate import Rule, same_quantity_agrees
+
+    # "0.00cm" is printed to 0.01 cm: half a unit is 0.00005 m, whatever the value
+    zero_cm, new = V.parse("0.00cm"), V.parse("0.004000000m")
+    assert zero_cm.si_per_unit == 0.01
+    assert not same_quantity_agrees(zero_cm, new, Rule())  # 0.004 m > 0.00005 m
+    assert same_quantity_agrees(zero_cm, V.parse("0.000040000m"), Rule())  # 0.00004 m <= 0.00005 m
+    assert same_quantity_agrees(zero_cm, new, Rule(abs_tol=0.004))
