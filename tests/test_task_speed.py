@@ -127,6 +127,24 @@ def test_acceleration_from_annotated_velocities(hand):
     assert "annotated 3D-box velocities" in x.question and x.question.endswith("(unit: m/s²)")
 
 
+def test_acceleration_interval_ending_in_invalid_poses_is_shortened_in_the_question(tmp_path):
+    # ScanNet camera: frames 0 and 1 valid (1 m apart along raw +Y), frame 2 invalid. The asked end
+    # t=2/30 s lies in the trailing invalid pose: the interval becomes [0, 1/30] s, where the
+    # forward and backward differences both give 30 m/s, so the mean acceleration is 0 m/s^2.
+    write_scene(tmp_path / "scans")
+    rows = [row(TASK, "ScanNet", f"{SN_SCENE}.mp4", 0, _cands(0.5, "m/s²"), "A", t0=0.0, t1=0.066667,
+                question="How quickly is the camera accelerating from 0s to 0.066667s?")]
+    write_legacy(rows, tmp_path / "qa.parquet")
+    params = {"legacy_benchmark": str(tmp_path / "qa.parquet"), "scannet_root": str(tmp_path / "scans"),
+              "waymo_root": "", "omni6d_root": "", "scannet_fps": 30, "omni6d_fps": 30, "video_map": "", "seed": 0,
+              "output_dir": str(tmp_path / "out"), "rule": {"abs_tol": 0.002, "rel_tol": 0.0}}
+    (o,) = run_task(TASK, params).outcomes
+    assert o.contract["operator"] == "acceleration" and o.answer.value == pytest.approx(0.0, abs=1e-9)
+    assert o.evidence["acceleration"]["shortened_to"] == pytest.approx(1 / 30)
+    assert o.time_end == pytest.approx(1 / 30) and o.contract["times"][1] == pytest.approx(1 / 30)
+    assert "between t=0 s and t=0.033333 s" in o.question
+
+
 # ----------------------------------------------------------------------------- the mini-world
 
 

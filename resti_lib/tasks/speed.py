@@ -207,7 +207,9 @@ def _acceleration_row(o: Outcome, r: dict, c: dict, view: SceneView, t0: float, 
         o.defects.append("value_mismatch")
     o.evidence.update({"operator": "acceleration", "value_si": value, "comparison": cmp_, "acceleration": aev,
                        **subj.evidence})
-    _finish(o, r, "acceleration", subj, value, unit, t0, t1, params, aev.get("estimator"))
+    # an interval ending in invalid poses was shortened: the question states the interval measured
+    _finish(o, r, "acceleration", subj, value, unit, t0, float(aev.get("t1_used", t1)), params,
+            aev.get("estimator"))
 
 
 def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
