@@ -143,3 +143,16 @@ def test_miniworld_exclusions_and_questions(disp_run):
 def test_miniworld_no_significant_attack_and_valid_options(disp_run):
     assert H.significant_attacks(disp_run) == []
     assert H.structural_failures(disp_run) == []
+
+
+def test_subject_phrases_of_the_scalar_questions():
+    from types import SimpleNamespace
+
+    from resti_lib.tasks.scalar_audit import subject_phrase, the_phrase
+
+    assert the_phrase("A white utility truck.") == "the white utility truck"
+    assert the_phrase("The  Office chair") == "the office chair"
+    assert the_phrase("TV stand") == "the TV stand"
+    assert the_phrase(None) == "the object"
+    assert subject_phrase(SimpleNamespace(kind="camera"), "a red car") == "the camera"
+    assert subject_phrase(SimpleNamespace(kind="object"), "a red car") == "the red car (its 3D box centre)"

@@ -49,6 +49,7 @@ from .scalar_audit import (
     question_defects,
     rule_for,
     scatter_by_source,
+    the_phrase,
     tie_break_by_legacy,
     to_unit,
     unit_for,
@@ -157,17 +158,6 @@ def _op_distance_to_camera(ctx: MeasureContext):
 
 
 # ----------------------------------------------------------------------------------------- audit
-
-
-def _np(desc: str | None) -> str:
-    """``"the <description>"`` for question text."""
-    d = " ".join(str(desc or "object").split()).rstrip(".")
-    low = d[0].lower() + d[1:] if d and not d[:2].isupper() else d
-    for art in ("the ", "a ", "an "):
-        if low.lower().startswith(art):
-            low = low[len(art):]
-            break
-    return "the " + low
 
 
 def _resolve_label(view: SceneView, desc: str | None):
@@ -362,15 +352,15 @@ def _unsupported(o: Outcome, r: dict) -> Outcome:
 def _question(c: dict, source: str, unit: str, t: float) -> str:
     op = c["operator"]
     if op == "dimension":
-        return (f"What is the {c['params']['dimension']} of {_np(c['entity'].get('description'))}? "
+        return (f"What is the {c['params']['dimension']} of {the_phrase(c['entity'].get('description'))}? "
                 f"{DIM_WORDING[source]} (unit: {unit})")
     if op == "distance_to_camera":
         return (f"At t={V.format_seconds(t)} s, what is the distance from the camera to the nearest point of the bounding box "
-                f"of {_np(c['entity'].get('description'))}? (unit: {unit})")
+                f"of {the_phrase(c['entity'].get('description'))}? (unit: {unit})")
     a, b = (c["entity"].get("descriptions") or ["object", "object"])[:2]
     when = f"At t={V.format_seconds(t)} s, what" if source == "Waymo" else "What"
-    return (f"{when} is the minimum surface-to-surface distance between the bounding boxes of {_np(a)} and "
-            f"{_np(b)}? (unit: {unit})")
+    return (f"{when} is the minimum surface-to-surface distance between the bounding boxes of {the_phrase(a)} and "
+            f"{the_phrase(b)}? (unit: {unit})")
 
 
 def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:

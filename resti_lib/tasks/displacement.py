@@ -42,6 +42,7 @@ from .scalar_audit import (
     question_defects,
     rule_for,
     scatter_by_source,
+    subject_phrase,
     value_table,
 )
 
@@ -68,18 +69,6 @@ def measure(track, op: str, t0: float, t1: float, params: dict) -> tuple[float, 
     if op == "displacement":
         return G.endpoint_displacement(track, t0, t1, rule=rule, tol=tol)
     return G.path_length(track, t0, t1, rule=rule, tol=tol, gaps=str(params.get("path_gaps", "error")))
-
-
-def _subject_phrase(subj, desc: str | None) -> str:
-    if subj.kind == "camera":
-        return "the camera"
-    d = " ".join(str(desc or "object").split()).rstrip(".")
-    low = d[0].lower() + d[1:] if d and not d[:2].isupper() else d
-    for art in ("the ", "a ", "an "):
-        if low.lower().startswith(art):
-            low = low[len(art):]
-            break
-    return f"the {low} (its 3D box centre)"
 
 
 def question_text(op: str, subject: str, t0: float, t1: float) -> str:
@@ -147,7 +136,7 @@ def audit_row(r: dict, ctx, params: dict, views: dict) -> Outcome:
     o.frames = source_frames(subj.track, t0, t1_used, **({"shortened_to": gev["shortened_to"]}
                                                        if gev.get("shortened_to") is not None else {}))
     o.transform_chain = subj.evidence.get("transform_chain", "")
-    o.question = question_text(op, _subject_phrase(subj, ent.get("description")), t0, t1_used)
+    o.question = question_text(op, subject_phrase(subj, ent.get("description")), t0, t1_used)
     o.prompt = r.get("Prompt") or ""
     o.time_start, o.time_end = t0, t1_used
     o.answer = AnswerSpec("scalar", value, UNIT, int(params.get("decimals", 2)))

@@ -62,6 +62,24 @@ def to_unit(value_si: float, unit: str) -> float:
     return float(value_si) / _SI[unit]
 
 
+def the_phrase(desc: str | None) -> str:
+    """``"the <description>"`` for question text: the leading article dropped, the first letter
+    lower-cased unless the description opens with an acronym (``"A TV stand"`` -> ``"the TV stand"``)."""
+    d = " ".join(str(desc or "object").split()).rstrip(".")
+    for art in ("the ", "a ", "an "):
+        if d.lower().startswith(art):
+            d = d[len(art):]
+            break
+    return "the " + (d[0].lower() + d[1:] if d and not d[:2].isupper() else d)
+
+
+def subject_phrase(subj, desc: str | None) -> str:
+    """The subject of a motion question: ``"the camera"`` or ``"the <object> (its 3D box centre)"``."""
+    if subj.kind == "camera":
+        return "the camera"
+    return f"{the_phrase(desc)} (its 3D box centre)"
+
+
 def question_defects(contract: dict) -> list[str]:
     """Question-layer defect codes of the contract's missing parts (unit, subject)."""
     out = []

@@ -50,6 +50,7 @@ from .scalar_audit import (
     new_outcome,
     question_defects,
     rule_for,
+    subject_phrase,
     value_table,
 )
 
@@ -133,18 +134,6 @@ def acceleration_value(view: SceneView, subj, t0: float, t1: float, params: dict
 # ------------------------------------------------------------------------------------- wording
 
 
-def _subject_text(subj, desc: str | None) -> str:
-    if subj.kind == "camera":
-        return "the camera"
-    d = " ".join(str(desc or "object").split()).rstrip(".")
-    low = d[0].lower() + d[1:] if d and not d[:2].isupper() else d
-    for art in ("the ", "a ", "an "):
-        if low.lower().startswith(art):
-            low = low[len(art):]
-            break
-    return f"the {low} (its 3D box centre)"
-
-
 def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | None = None) -> str:
     span = f"between t={V.format_seconds(t0)} s and t={V.format_seconds(t1)} s"
     if op == "average_velocity":
@@ -185,7 +174,7 @@ def _finish(o: Outcome, r: dict, op: str, subj, value: float, unit: str, t0: flo
     o.source_files = list(subj.files)
     o.frames = source_frames(subj.track, t0, t1)
     o.transform_chain = subj.evidence.get("transform_chain", "")
-    o.question = question_text(op, _subject_text(subj, ent.get("description")), t0, t1, estimator)
+    o.question = question_text(op, subject_phrase(subj, ent.get("description")), t0, t1, estimator)
     o.prompt = r.get("Prompt") or ""
     o.time_start, o.time_end = t0, t1
     o.answer = AnswerSpec("scalar", value, unit, int(params.get("decimals", 2)))
