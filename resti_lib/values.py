@@ -194,6 +194,18 @@ class Trajectory:
             out.append(k if k == "move" else ("turn+" if v > 0 else "turn-"))
         return tuple(out)
 
+    @property
+    def segment_decimals(self) -> tuple:
+        """Printed decimals of each segment's magnitude in ``text`` (0 where the text does not print it)."""
+        parts = [p.strip() for p in re.split(r",\s*then\s+", " ".join(self.text.strip().split()))]
+        if len(parts) != len(self.segments):
+            return (0,) * len(self.segments)
+        out = []
+        for p in parts:
+            m = _MOVE_RE.match(p) or _TURN_RE.match(p)
+            out.append(_decimals(m["num"]) if m else 0)
+        return tuple(out)
+
     def key(self) -> tuple:
         return ("trajectory",) + tuple((k, round(v, 9)) for k, v in self.segments)
 

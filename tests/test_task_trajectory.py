@@ -78,6 +78,12 @@ def test_grid_and_comparison():
     assert cmp["same_structure"] and not cmp["agrees"] and cmp["errors"][0] == pytest.approx(6.8)
     near = V.parse("move forward 346.8m, then turn right 30°, then move forward 12.1m")
     assert TR.compare(near, src, rule, 2.0)["agrees"]
+    # each move agrees within half a unit of its own printed place: 12m (+-0.5) but not 12.0m (+-0.05)
+    src2 = [("move", 346.8), ("turn", -30.4), ("move", 12.4)]
+    assert TR.compare(V.parse("move forward 346.8m, then turn right 30°, then move forward 12m"), src2,
+                      Rule(), 2.0)["agrees"]
+    assert not TR.compare(V.parse("move forward 346.8m, then turn right 30°, then move forward 12.0m"), src2,
+                          Rule(), 2.0)["agrees"]
     flipped = V.parse("move forward 346.8m, then turn left 30°, then move forward 12.1m")
     assert not TR.compare(flipped, src, rule, 2.0)["same_structure"]
 

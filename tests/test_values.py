@@ -114,3 +114,10 @@ def test_comparison_rule_half_unit_of_a_zero_in_centimetres():
     assert not same_quantity_agrees(zero_cm, new, Rule())  # 0.004 m > 0.00005 m
     assert same_quantity_agrees(zero_cm, V.parse("0.000040000m"), Rule())  # 0.00004 m <= 0.00005 m
     assert same_quantity_agrees(zero_cm, new, Rule(abs_tol=0.004))
+
+
+def test_trajectory_segment_decimals():
+    t = V.parse("move forward 340m, then turn right 30.5°, then move  forward 12.10m")
+    assert t.segment_decimals == (0, 1, 2)
+    assert V.parse("no significant movement").segment_decimals == ()
+    assert V.Trajectory(segments=(("move", 1.0),), text="").segment_decimals == (0,)

@@ -195,27 +195,16 @@ def compare(legacy: V.Trajectory, segs: list[tuple[str, float]], rule: Rule, tur
         out["agrees"] = False
         return out
     errs, ok = [], True
-    for (k, lv), (_, nv) in zip(legacy.segments, segs):
+    for (k, lv), (_, nv), dec in zip(legacy.segments, segs, legacy.segment_decimals):
         err = abs(lv - nv)
         errs.append(err)
         if k == "move":
-            dec = _decimals_in(legacy.text, lv)
             ok &= err <= 0.5 * 10.0 ** -dec + rule.abs_tol + rule.rel_tol * abs(nv) + 1e-9
         else:
             ok &= err <= 0.5 + turn_tol_deg + 1e-9
     out.update({"errors": errs, "agrees": bool(ok), "rule": rule.describe() + f"; turns within 0.5 + "
                 f"{turn_tol_deg:g} deg"})
     return out
-
-
-def _decimals_in(text: str, v: float) -> int:
-    """Printed decimals of a move distance inside a phrase (0 when printed as an integer)."""
-    import re
-
-    for m in re.finditer(r"move forward\s+([-+]?\d+(?:\.(\d+))?)\s*m", text or ""):
-        if abs(float(m.group(1)) - v) < 1e-9:
-            return len(m.group(2) or "")
-    return 0
 
 
 # ------------------------------------------------------------------------------------- the task
