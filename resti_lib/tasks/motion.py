@@ -47,9 +47,6 @@ from .scalar_audit import Excluded, tie_break_by_legacy
 
 __all__ = ["Subject", "ambiguous_subject", "camera_subject", "source_frames", "waymo_object_subject"]
 
-SUBJECT_TEXT = {"ScanNet": "camera", "Waymo": "camera", "Omni6DPose": "camera"}
-
-
 class Subject:
     """A resolved motion subject: its track, a text for the question and evidence."""
 
