@@ -13,6 +13,7 @@ import pandas as pd  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
 from . import TASKS  # noqa: E402
+from .figures import save_figure  # noqa: E402
 
 plt.rcParams.update({"figure.dpi": 110, "savefig.dpi": 110, "font.size": 8, "svg.hashsalt": "resti",
                      "axes.spines.top": False, "axes.spines.right": False})
@@ -28,11 +29,7 @@ def clopper_pearson(hits, n, level: float = 0.95):
 
 
 def _save(fig, path: Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_label: str = "") -> Path:

@@ -60,6 +60,7 @@ from scipy.spatial.transform import Rotation
 from . import LETTERS, SOURCES, TASKS, __version__, paths
 from . import values as V
 from .errors import InputError
+from .figures import save_figure
 from .io.benchmark import atomic_write_bytes, jsonl_text, load_release, rows_to_parquet_bytes
 from .options import builders as B
 from .options.learned import LearnedConfig, attack_table_with_learned
@@ -974,11 +975,7 @@ def before_after_figure(strongest: pd.DataFrame, path: str | os.PathLike) -> Pat
     ax.set_xlim(0, 1)
     ax.set_xlabel("accuracy without video; dashed: chance 1/5")
     ax.legend(fontsize=6, loc="lower right")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def preserved_fields_check(before: list[dict], after: list[dict]) -> list[str]:

@@ -54,6 +54,7 @@ from .. import values as V
 from ..adjudicate import Rule, verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
+from ..figures import save_figure
 from ..geometry.frames import R_WAYMO_FROM_CV, T_WAYMO_CAM_FROM_CV_CAM, make_T
 from ..measure import MeasureContext, register_operator
 from ..sources.context import SourceContext
@@ -1049,11 +1050,7 @@ def figure_topdown(run, params: dict, path: str | Path, *, row: int | None = Non
     world = {"ScanNet": "raw scan frame", "Waymo": "segment world frame", "Omni6DPose": "ROPE scene frame"}[o.source]
     ax.set_title(f"{o.video} at {o.time_start:.3f} s, {world}; winner: {d.get('winner')}", fontsize=8, loc="left")
     ax.legend(fontsize=7, loc="best", frameon=False)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def figure_distances(outcomes: list[Outcome], path: str | Path) -> Path | None:
@@ -1082,8 +1079,4 @@ def figure_distances(outcomes: list[Outcome], path: str | Path) -> Path | None:
     ax.set_yticks(range(len(sources)), sources)
     ax.set_xlabel("distance (m, log scale; bars: medians)")
     ax.legend(fontsize=7, frameon=False, loc="upper left")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)

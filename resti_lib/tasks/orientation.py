@@ -33,6 +33,7 @@ from .. import values as V
 from ..adjudicate import verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
+from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import opencv_cam_pose_to_waymo
 from ..geometry.trajectory import PoseTrack
@@ -430,11 +431,7 @@ def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = N
     fig.suptitle(f"{o.video}: {o.time_start:.3f} s to {o.time_end:.3f} s; legacy detail "
                  f"{leg if leg is None else f'{leg:+.2f}°'}", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def figure_scatter(outcomes: list[Outcome], path: str | Path) -> Path | None:
@@ -461,8 +458,4 @@ def figure_scatter(outcomes: list[Outcome], path: str | Path) -> Path | None:
     axes[0].set_ylabel("legacy Answer Detail (°)")
     axes[0].legend(fontsize=7, frameon=False)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", dpi=120, metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)

@@ -42,6 +42,7 @@ from .. import values as V
 from ..adjudicate import Rule, same_quantity_agrees, verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
+from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import invert_T
 from ..geometry.trajectory import PoseTrack
@@ -386,11 +387,7 @@ def plot_translation_change(table: pd.DataFrame, path: str | Path, *, title: str
     ax.set_title(title or f"Waymo pose rows from a wrong timestamp: {s['n_wrong']} of {s['n_rows']}",
                  fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 __all__ = [

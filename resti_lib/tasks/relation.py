@@ -41,6 +41,7 @@ from .. import values as V
 from ..adjudicate import verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
+from ..figures import save_figure
 from ..measure import MeasureContext, register_operator
 from . import referents as R
 from .base import AnswerSpec, Outcome
@@ -368,11 +369,7 @@ def plot_margins(table: pd.DataFrame, path: str | Path, *, dominance_ratio: floa
     ax.set_ylabel("|depth offset| along camera z [m]")
     ax.set_title(f"Omni6DPose pairs; grey: neither exceeds {dominance_ratio:g}x the other", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------- measure operators

@@ -36,6 +36,7 @@ from .. import values as V
 from ..adjudicate import Rule, verdict_for
 from ..contract import parse_question
 from ..errors import ContractError, InputError
+from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.trajectory import PoseTrack
 from ..measure import MeasureContext, register_operator
@@ -345,11 +346,7 @@ def plot_path(track: PoseTrack, evidence: dict, path: str | Path, *, title: str 
     ax.set_title(title or V.format_trajectory(segs), fontsize=7)
     ax.legend(frameon=False, fontsize=7, loc="best")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_paths(outcomes: list[Outcome], params: dict, fig_dir: str | Path, *, prefix: str = "07_trajectory_path",
