@@ -84,16 +84,17 @@ def paper_comparison(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05, attacks="all",
-                 learned: bool = False, groups: dict | None = None) -> pd.DataFrame:
+                 learned=False, groups: dict | None = None) -> pd.DataFrame:
     """Attacks on a legacy ``qa.parquet`` ("before repair"): a hit is a pick of the keyed letter.
-    ``learned=True`` adds the learned blind attacker to the family, cross-validated by ``groups``
+    ``learned=True`` (or a ``LearnedConfig``) adds the learned blind attacker to the family,
+    cross-validated by ``groups``
     (Legacy Row Key -> group, e.g. the source sequence; default the video)."""
     from .io.benchmark import load_legacy
     from .options.learned import attack_table_with_learned
 
     df, _ = load_legacy(legacy, strict=False)
     table = attack_table_with_learned(df.to_dict("records"), alpha=alpha, attacks=select_attacks(attacks),
-                                      learned=None if learned else False, groups=groups)
+                                      learned=None if learned is True else learned, groups=groups)
     write_table(table, Path(out_dir) / "attacks_legacy", caption=f"Option-only attacks on the legacy "
                 f"benchmark (Holm alpha={alpha})")
     return table
