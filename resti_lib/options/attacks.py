@@ -188,13 +188,20 @@ def _circ(p: ParsedRow):
     return _pick_unique({k: -abs(np.angle(np.exp(1j * (a - m)))) for k, a in rad.items()})
 
 
-@attack("field_median", ["box", "pose"], "per-field median vote over every printed field")
-def _field_median(p: ParsedRow):
+def _field_matrix(p: ParsedRow) -> tuple[list, np.ndarray | None]:
+    """Letters (sorted) and the 5 x n matrix of every printed field of a structured answer."""
     flat = _flat_fields(p)
     if flat is None:
-        return None
+        return [], None
     keys = sorted(flat)
-    X = np.array([flat[k] for k in keys])
+    return keys, np.array([flat[k] for k in keys])
+
+
+@attack("field_median", ["box", "pose"], "per-field median vote over every printed field")
+def _field_median(p: ParsedRow):
+    keys, X = _field_matrix(p)
+    if X is None:
+        return None
     votes = Counter()
     for j in range(X.shape[1]):
         col = X[:, j]
@@ -207,11 +214,9 @@ def _field_median(p: ParsedRow):
 
 @attack("field_majority", ["box", "pose"], "per-field modal value vote (values shared by >= 2 candidates)")
 def _field_majority(p: ParsedRow):
-    flat = _flat_fields(p)
-    if flat is None:
+    keys, X = _field_matrix(p)
+    if X is None:
         return None
-    keys = sorted(flat)
-    X = np.array([flat[k] for k in keys])
     votes = Counter()
     for j in range(X.shape[1]):
         c = Counter(np.round(X[:, j], 9))
@@ -247,11 +252,9 @@ for _g, _kinds in [("center", ["box"]), ("logdims", ["box"]), ("translation", ["
 
 
 def _standardized(p: ParsedRow) -> dict | None:
-    flat = _flat_fields(p)
-    if flat is None:
+    keys, X = _field_matrix(p)
+    if X is None:
         return None
-    keys = sorted(flat)
-    X = np.array([flat[k] for k in keys])
     sd = X.std(axis=0)
     keep = sd > 1e-12
     if not keep.any():
