@@ -76,6 +76,16 @@ def _plain_image_meta(data: dict) -> SimpleNamespace:
                            scene_dataset=data.get("scene_dataset"))
 
 
+def _read_json(path: Path) -> Any:
+    """A JSON file's content; unreadable or invalid JSON is an InputError naming the file (and line)."""
+    try:
+        return json.loads(path.read_text())
+    except OSError as e:
+        raise InputError(f"cannot read: {e}", file=path) from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
+
+
 def load_frame_meta(path: str | Path):
     """``<frame>_meta.json`` -> ``cutoop.image_meta.ImageMetaData``.
 
@@ -85,12 +95,7 @@ def load_frame_meta(path: str | Path):
         Unreadable/invalid JSON or a field that cutoop's dataclasses require is missing.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(f"cannot read: {e}", file=path) from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
+    data = _read_json(path)
     try:
         if HAVE_CUTOOP:
             return ImageMetaData(**data)
@@ -102,12 +107,7 @@ def load_frame_meta(path: str | Path):
 def load_object_meta(path: str | Path):
     """``Meta/real_obj_meta.json`` -> ``cutoop.obj_meta.ObjectMetaData`` (``instance_dict[oid]``)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(f"cannot read object meta: {e}", file=path) from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
+    data = _read_json(path)
     try:
         if HAVE_CUTOOP:
             return ObjectMetaData(**data)
