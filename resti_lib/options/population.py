@@ -165,13 +165,17 @@ class Map1D:
         out = np.where(z < u[0], g[0] + (z - u[0]) * lo, out)
         return np.where(z > u[-1], g[-1] + (z - u[-1]) * hi, out)
 
-    def cell_score(self, lo: float, hi: float, rng: np.random.Generator) -> float:
-        """A score uniform in probability over the base interval ``[lo, hi]`` (a rounding cell)."""
+    def cell_score(self, lo: float, hi: float, rng: np.random.Generator, k: int | None = None):
+        """Score(s) uniform in probability over the base interval ``[lo, hi]`` (a rounding cell);
+        ``k``: that many (an array), else one float."""
         u_lo, u_hi = self.score([lo, hi])
         p_lo, p_hi = float(ndtr(u_lo)), float(ndtr(u_hi))
+        r = rng.random(1 if k is None else k)
         if not p_hi > p_lo:
-            return float(0.5 * (u_lo + u_hi))
-        return float(ndtri(p_lo + rng.random() * (p_hi - p_lo)))
+            out = np.full(r.shape, 0.5 * (u_lo + u_hi))
+        else:
+            out = ndtri(p_lo + r * (p_hi - p_lo))
+        return float(out[0]) if k is None else out
 
 
 @dataclass
@@ -264,6 +268,44 @@ def truncated(c: float, s: float, bound: float, n: int, below: bool, rng: np.ran
     return c + s * z
 
 
+def ranked_others_batch(z_a: np.ndarray, k: int, s: float, rng: np.random.Generator, n_cont: int = 5,
+                        grid: int = 401) -> np.ndarray:
+    """Vectorised :func:`ranked_others`: for each answer score in ``z_a`` (K,), the ``n_cont - 1``
+    other draws when the answer has rank ``k`` (returns (K, n_cont - 1))."""
+    z_a = np.asarray(z_a, dtype=float)
+    K = z_a.size
+    prior_sd = math.sqrt(max(1.0 - s * s, 1e-6))
+    lo = min(float(z_a.min()), 0.0) - 8.0 * s - 4 * prior_sd
+    hi = max(float(z_a.max()), 0.0) + 8.0 * s + 4 * prior_sd
+    c = np.linspace(lo, hi, grid)
+    z = (z_a[:, None] - c[None, :]) / s
+    logw = -0.5 * (c[None, :] / prior_sd) ** 2 - 0.5 * z * z
+    if k > 1:
+        logw += (k - 1) * log_ndtr(z)
+    if n_cont - k > 0:
+        logw += (n_cont - k) * log_ndtr(-z)
+    w = np.exp(logw - logw.max(axis=1, keepdims=True))
+    cdf = np.cumsum(w, axis=1)
+    idx = np.minimum((cdf < rng.random(K)[:, None] * cdf[:, -1:]).sum(axis=1), grid - 1)
+    step = (hi - lo) / (grid - 1)
+    anchor = c[idx] + (rng.random(K) - 0.5) * step
+    out = []
+    for n_side, below in ((k - 1, True), (n_cont - k, False)):
+        if n_side == 0:
+            continue
+        zb = (z_a - anchor) / s
+        if below:
+            p = ndtr(zb)
+            q = ndtri(np.clip(rng.random((K, n_side)) * p[:, None], 1e-300, 1 - 1e-16))
+            q = np.minimum(q, zb[:, None])
+        else:
+            p = ndtr(-zb)
+            q = -ndtri(np.clip(rng.random((K, n_side)) * p[:, None], 1e-300, 1 - 1e-16))
+            q = np.maximum(q, zb[:, None])
+        out.append(anchor[:, None] + s * q)
+    return np.concatenate(out, axis=1) if out else np.zeros((K, 0))
+
+
 def ranked_others(z_a: float, k: int | None, s: float, rng: np.random.Generator, n_cont: int = 5
                   ) -> np.ndarray:
     """The ``n_cont - 1`` other standardised draws of one field when the answer has rank ``k``
@@ -274,4 +316,4 @@ def ranked_others(z_a: float, k: int | None, s: float, rng: np.random.Generator,
 
 
 __all__ = ["Marginal", "Map1D", "Copula", "circular_cut", "on_cut_line", "from_cut_line", "others_given_answer",
-           "prior_draws", "anchor_given_rank", "truncated", "ranked_others"]
+           "prior_draws", "anchor_given_rank", "truncated", "ranked_others", "ranked_others_batch"]

@@ -48,8 +48,7 @@ from .. import values as V
 from ..errors import InputError
 from ..rng import row_rng, stable_seed
 from .builders import OptionError
-from .population import (Copula, Marginal, circular_cut, from_cut_line, on_cut_line, others_given_answer,
-                         prior_draws, ranked_others)
+from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line, ranked_others_batch
 from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_option_params, per_source, pose_floors,
                    pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
 
@@ -255,24 +254,35 @@ class RowDraw:
     last_za: np.ndarray | None = None
 
     def draw(self, cells: list, s: float, rng: np.random.Generator, *, n: int = 4, rank=None, prior: bool = False,
-             gamma: float = 1.0) -> np.ndarray:
-        """Base values (n, d) given the answer's base rounding ``cells`` [(lo, hi), ...];
-        ``prior``: no designated answer (fixed-slot rows)."""
+             gamma: float = 1.0, batch: int | None = None) -> np.ndarray:
+        """Base values (n, d) — or (batch, n, d) — given the answer's base rounding ``cells``
+        [(lo, hi), ...]; ``prior``: no designated answer (fixed-slot rows)."""
         d = len(self.maps)
+        K = batch or 1
         if prior:
-            z = gamma * prior_draws(d, s, rng, n)
+            c = math.sqrt(max(1.0 - s * s, 1e-6)) * rng.standard_normal((K, 1, d))
+            z = gamma * (c + s * rng.standard_normal((K, n, d)))
             self.last_za = None
         else:
-            u_a = np.array([m.cell_score(lo, hi, rng) for m, (lo, hi) in zip(self.maps, cells)])
-            z_a = np.linalg.solve(self.L, u_a - self.mu)
+            u_a = np.column_stack([m.cell_score(lo, hi, rng, K) for m, (lo, hi) in zip(self.maps, cells)])
+            z_a = np.linalg.solve(self.L, (u_a - self.mu[None, :]).T).T  # (K, d)
             if d == 1 and rank is not None:
-                z = gamma * ranked_others(float(z_a[0]) / gamma, rank, s, rng, n_cont=n + 1)[:, None]
+                z = gamma * ranked_others_batch(z_a[:, 0] / gamma, int(rank), s, rng, n_cont=n + 1)[:, :, None]
             else:
-                z = gamma * others_given_answer(z_a / gamma, s, rng, n)
+                zs = z_a / gamma
+                c = (1.0 - s * s) * zs + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
+                z = gamma * (c[:, None, :] + s * rng.standard_normal((K, n, d)))
             self.last_za = z_a
         self.last_z = z
-        u = self.mu[None, :] + z @ self.L.T
-        return np.column_stack([self.maps[j].values(u[:, j]) for j in range(d)])
+        u = self.mu[None, None, :] + z @ self.L.T
+        out = np.stack([self.maps[j].values(u[:, :, j].ravel()).reshape(K, n) for j in range(d)], axis=-1)
+        return out if batch else out[0]
+
+    def keep(self, i: int) -> None:
+        """Record batch member ``i`` as the accepted draw (for calibration)."""
+        if self.last_z is not None and self.last_z.ndim == 3:
+            self.last_z = self.last_z[i]
+            self.last_za = None if self.last_za is None else self.last_za[i]
 
 
 def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.ndarray:
@@ -618,7 +628,7 @@ class Stage:
         self._last = rd
         return out
 
-    def calibrate(self, *, sample: int = 60, rounds: int = 2) -> dict:
+    def calibrate(self, *, sample: int = 40, rounds: int = 1) -> dict:
         """Per group, the scale ``gamma`` of the exchangeable model under which the distractors that
         meet the constraints are as spread (in standardised score space) as the answers.
 
@@ -653,8 +663,8 @@ class Stage:
                         zd.append(self._last.last_z)
                 if len(za) < 10:
                     break
-                ra = math.sqrt(float(np.mean(np.concatenate(za) ** 2)))
-                rd = math.sqrt(float(np.mean(np.concatenate(zd) ** 2)))
+                ra = math.sqrt(float(np.mean(np.concatenate([x.ravel() for x in za]) ** 2)))
+                rd = math.sqrt(float(np.mean(np.concatenate([x.ravel() for x in zd]) ** 2)))
                 gamma = float(np.clip(gamma * ra / max(rd, 1e-6), 0.4, 1.0))
             gm.info["gamma"] = gamma
             out[g] = gamma
@@ -707,6 +717,8 @@ class Stage:
         builder = getattr(self, f"_build_{kind}")
         s0 = float(self.model["s"])
         tries = int(self.model["max_tries"]) // (4 if calibrating else 1)
+        if kind in ("scalar", "angle"):
+            tries = max(2, tries // 16)  # each try is a batch of 32 sets
         rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else "options")
         last = "no candidates drawn"
         g0 = gm.info.get("gamma", 1.0)
@@ -725,38 +737,65 @@ class Stage:
                 return strings
         raise OptionError(f"{p.rid} ({p.spec.task}, {p.spec.source}): no options under the constraints ({last})")
 
-    # -- one-dimensional kinds
+    # -- one-dimensional kinds (drawn in batches, checked vectorised, the first valid set kept)
+    def _first_valid_1d(self, pv: np.ndarray, ok: np.ndarray, gap_of, rel: float = 0.0, circular: bool = False
+                        ) -> list:
+        """Indices of batch rows whose five printed values ``pv`` (K, 5) are distinct and separated."""
+        srt = np.sort(pv, axis=1)
+        d = np.diff(srt, axis=1)
+        need = gap_of(srt[:, 1:])
+        good = ok & (d >= need - 1e-9).all(axis=1)
+        if rel > 0:
+            good &= (d >= rel * np.abs(srt[:, 1:]) - 1e-12).all(axis=1)
+        if circular:
+            good &= (srt[:, 0] + 360.0 - srt[:, -1]) >= gap_of(srt[:, :1])[:, 0] - 1e-9
+        return list(np.flatnonzero(good))
+
     def _build_scalar(self, p, gm, s, rng, keep_rank, reveals):
         spec = p.spec
         v: V.Scalar = spec.value
         eps = gm.info["eps"]
-        lo_b, hi_b = scalar_bounds(spec, self.params)
+        _, hi_b = scalar_bounds(spec, self.params)
         fixed = list(p.fixed)
         n_cont = 5 - len(fixed)
         n_draw = n_cont if p.answer_is_fixed else n_cont - 1
+        K = 32
         if p.answer_is_fixed:
             rid = p.rid if p.rid in gm.fields.index else next(iter(gm.fields.index))
             off = gm.info["offset"].get(rid, 0.0) if rid == p.rid else self._mean_offset(gm, spec)
-            b = self._draw(gm, rid, [], s, rng, n=n_draw, prior=True)[:, 0]
+            b = self._draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K)[:, :, 0]
         else:
             off = gm.info["offset"][p.rid]
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
             rank = (p.rank - len(fixed)) if (keep_rank and p.rank is not None) else None
-            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, rank=rank)[:, 0]
-        xs = np.exp(b + off) - eps
+            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, rank=rank, batch=K)[:, :, 0]
         dec = spec.decimals
-        strings = [V.format_scalar(float(x), v.unit, dec) for x in xs]
-        values = [float(V.parse(t).value) for t in strings]
-        if any(x <= 0 for x in values):
-            raise _Reject("a distractor prints as zero or less")
-        if any(x > hi_b for x in values):
-            raise _Reject("a distractor is not physically possible")
-        allv = values + [float(V.parse(t).value) for t in fixed] + ([] if p.answer_is_fixed else [v.value])
-        alls = strings + fixed + ([] if p.answer_is_fixed else [spec.detail])
-        self._check_1d(spec, allv, alls, gap=lambda x: scalar_gap(spec, self.params, x),
-                       rel=self.params["separation"]["scalar"]["min_rel_gap"])
-        return alls
+        xs = np.exp(b + off) - eps
+        pv = np.round(xs, dec)
+        extra = [float(V.parse(t).value) for t in fixed] + ([] if p.answer_is_fixed else [v.value])
+        allv = np.column_stack([pv, np.tile(extra, (K, 1))]) if extra else pv
+        ok = (pv > 0).all(axis=1) & (pv <= hi_b + 1e-12).all(axis=1)
+        sep = self.params["separation"]["scalar"]
+        per_unit = v.si_per_unit
+        ulp = spec.ulp
+
+        def gap_of(upper):
+            tol = 0.5 * ulp + (spec.rule.abs_tol + spec.rule.rel_tol * upper * per_unit) / per_unit
+            return np.maximum(sep["min_gap_ulps"] * ulp, tol)
+
+        for i in self._first_valid_1d(allv, ok, gap_of, rel=sep["min_rel_gap"]):
+            strings = [V.format_scalar(float(t), v.unit, dec) for t in xs[i]]
+            alls = strings + fixed + ([] if p.answer_is_fixed else [spec.detail])
+            try:
+                self._check_1d(spec, [float(V.parse(t).value) for t in alls], alls,
+                               gap=lambda t: scalar_gap(spec, self.params, t), rel=sep["min_rel_gap"])
+            except _Reject:
+                continue
+            if self._last is not None:
+                self._last.keep(i)
+            return alls
+        raise _Reject("no drawn set met the separation and plausibility constraints")
 
     def _mean_offset(self, gm, spec) -> float:
         q = spec.obs.quantity
@@ -788,15 +827,25 @@ class Stage:
 
         cell = (b(max(x - h, -180.0)), b(min(x + h, 180.0 - 1e-9)))
         rank = p.rank if keep_rank else None
-        z = self._draw(gm, p.rid, [cell], s, rng, n=4, rank=rank)[:, 0]
+        K = 32
+        z = self._draw(gm, p.rid, [cell], s, rng, n=4, rank=rank, batch=K)[:, :, 0]
         th = 180.0 * np.tanh(z)
-        strings = [V.format_angle(float(t), spec.decimals) for t in th]
-        values = [float(V.parse(t).value) for t in strings] + [x]
-        if any(not -180.0 <= t < 180.0 for t in values):
-            raise _Reject("a heading outside [-180, 180)")
+        pv = np.round(V.wrap_degrees(th), spec.decimals)
+        pv = np.where(pv >= 180.0, -180.0, pv)
+        allv = np.column_stack([pv, np.full(K, x)])
         g = angle_gap(spec, self.params)
-        self._check_1d(spec, values, strings + [spec.detail], gap=lambda _: g, circular=True)
-        return strings + [spec.detail]
+        ok = np.ones(K, bool)
+        for i in self._first_valid_1d(allv, ok, lambda u: np.full(u.shape, g), circular=True):
+            strings = [V.format_angle(float(t), spec.decimals) for t in th[i]] + [spec.detail]
+            try:
+                self._check_1d(spec, [float(V.parse(t).value) for t in strings], strings, gap=lambda _: g,
+                               circular=True)
+            except _Reject:
+                continue
+            if self._last is not None:
+                self._last.keep(i)
+            return strings
+        raise _Reject("no drawn set met the separation constraints")
 
     def _build_trajectory(self, p, gm, s, rng, keep_rank, reveals):
         spec = p.spec
