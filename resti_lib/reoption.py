@@ -36,9 +36,10 @@ from .options import builders as B
 from .options.learned import LearnedConfig, attack_table_with_learned
 from .options.spec import load_option_params
 from .options.stage import build_options
+from .options.structural import evaluation_subset, structural_leaks
 
 DEFAULT_RELEASE = "${SHARED}/data/resti_v5"
-ARTIFACTS = ("resti.jsonl", "resti.parquet", "excluded.jsonl")
+ARTIFACTS = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json")
 
 
 class ReoptionError(RuntimeError):
@@ -122,6 +123,8 @@ class ReoptionResult:
     meta: dict
     validation: dict
     seconds: float
+    leaks: pd.DataFrame | None = None
+    subset: dict | None = None
 
 
 def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str | os.PathLike = "outputs/reoption",
@@ -141,11 +144,14 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
         records = rel.accepted.to_dict("records")
     opts = load_option_params(options)
     rows, ev = reoption_records(records, seed=seed, options=options)
+    leaks = structural_leaks(rows, opts)
+    subset = evaluation_subset(rows, leaks, seed=seed)
     exc_bytes = rel.excluded_file.read_bytes() if rel.excluded_file is not None else b""
     data = {
         "resti.jsonl": jsonl_text(rows).encode("utf-8"),
         "resti.parquet": rows_to_parquet_bytes(rows),
         "excluded.jsonl": exc_bytes,
+        "evaluation_subset.json": (json.dumps(subset, indent=1, ensure_ascii=False) + "\n").encode("utf-8"),
     }
     artifacts = {n: {"bytes": len(b), "sha256": _sha(b)} for n, b in data.items()}
     src_digests = {}
@@ -154,6 +160,7 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
             src_digests[f.name] = {"bytes": f.stat().st_size, "sha256": _sha(f.read_bytes())}
     meta = release_meta(rows, rel.excluded, artifacts, source_meta=rel.meta, source_digests=src_digests,
                         seed=seed, options=opts)
+    meta["structural_leaks"] = json.loads(leaks.to_json(orient="records"))
     data["release.json"] = (json.dumps(meta, indent=2, ensure_ascii=False) + "\n").encode("utf-8")
     sums = "".join(f"{_sha(data[n])}  {n}\n" for n in (*ARTIFACTS, "release.json"))
     data["SHA256SUMS"] = sums.encode("utf-8")
@@ -175,7 +182,7 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0)
+    return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0, leaks, subset)
 
 
 # ------------------------------------------------------------------------------------ audit
