@@ -23,11 +23,13 @@ from resti_lib.cli import main as cli_main
 from resti_lib.io.benchmark import load_release
 from resti_lib.options.attacks import attack_table, binom_p, parse_rows
 from resti_lib.options.learned import LearnedConfig, attack_table_with_learned, learned_picks
-from resti_lib.options.population import field_draws, fit_model
+from resti_lib.options.population import Marginal
+from resti_lib.options.stage import constrained_schedule
 from resti_lib.verify import verify_path
 from tests.helpers import row, write_release
 
-FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "release.json", "SHA256SUMS", "validation.json")
+FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json", "release.json", "SHA256SUMS",
+         "validation.json")
 
 
 def _read_jsonl(path: Path) -> list[dict]:
@@ -108,20 +110,26 @@ def tiny_release(tmp_path) -> Path:
 
 def test_constrained_schedule_balances_within_constraints():
     allowed = {f"k{i}": ({1} if i < 3 else {2, 3, 4, 5} if i < 10 else set(range(1, 6))) for i in range(25)}
-    out = RO.constrained_schedule(allowed, [1, 2, 3, 4, 5], seed=0, group="g")
+    out = constrained_schedule(allowed, [1, 2, 3, 4, 5], seed=0, group="g")
     assert all(out[k] in allowed[k] for k in allowed)
     counts = Counter(out.values())
     assert max(counts.values()) - min(counts.values()) <= 1
-    assert out == RO.constrained_schedule(dict(reversed(list(allowed.items()))), [1, 2, 3, 4, 5], seed=0, group="g")
+    assert out == constrained_schedule(dict(reversed(list(allowed.items()))), [1, 2, 3, 4, 5], seed=0, group="g")
 
 
-def test_population_draws_follow_the_population():
+def test_marginal_scores_follow_the_known_distribution():
+    # the normal score of a value under the leave-one-out map is the known CDF's probit
+    from scipy.stats import norm
+
     rng = np.random.default_rng(0)
-    values = np.exp(rng.normal(0, 0.6, 300))
-    model = fit_model(values, kind="positive", ulp=0.01)
-    draws = np.concatenate([field_draws(model.population(i), values[i], s=0.4, rng=rng) for i in range(300)])
-    q = [0.1, 0.25, 0.5, 0.75, 0.9]
-    assert np.allclose(np.quantile(np.log(draws), q), np.quantile(np.log(values), q), atol=0.12)
+    b = rng.normal(0.3, 0.6, 2000)
+    m = Marginal.fit(b, 0.005)
+    x = np.array([-0.6, 0.0, 0.3, 0.9, 1.2])
+    got = m.row_map(7).score(x)
+    assert np.allclose(got, (x - 0.3) / 0.6, atol=0.12)
+    # and the inverse maps normal quantiles back to the distribution's quantiles
+    assert np.allclose(m.row_map(None).values(norm.ppf([0.1, 0.5, 0.9])), 0.3 + 0.6 * norm.ppf([0.1, 0.5, 0.9]),
+                       atol=0.08)
 
 
 def test_tiny_release_rebuilt_preserved_verified_deterministic(tiny_release, tmp_path):
@@ -305,7 +313,7 @@ def test_v5_rebuilt_release_verifies(rebuilt):
     for name, art in meta["artifacts"].items():
         assert (rebuilt.out_dir / name).stat().st_size == art["bytes"]
     sums = (rebuilt.out_dir / "SHA256SUMS").read_text().split()
-    assert sums[1::2] == ["resti.jsonl", "resti.parquet", "excluded.jsonl", "release.json"]
+    assert sums[1::2] == ["resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json", "release.json"]
 
 
 @pytest.mark.shared

@@ -177,7 +177,10 @@ def speed_bound(params: dict, source: str, subject_class: str) -> float:
 
 
 def scalar_bounds(spec: OptionSpec, params: dict) -> tuple[float, float]:
-    """Physically possible range of a magnitude (in the answer's unit) given the question."""
+    """Physically possible range of a magnitude (in the answer's unit) given the question.
+
+    The source answer is possible by definition: where it exceeds the configured bound, the bound
+    widens to a quarter above it (the answer is never the only candidate inside the bound)."""
     pl = params["plausibility"]
     o = spec.obs
     per_unit = spec.value.si_per_unit if isinstance(spec.value, V.Scalar) else 1.0
@@ -194,7 +197,9 @@ def scalar_bounds(spec: OptionSpec, params: dict) -> tuple[float, float]:
         hi = float(per_source(pl["max_size_m"], spec.source, math.inf))
     elif q in ("distance_to_camera", "surface_distance", "distance"):
         hi = float(per_source(pl["max_depth_m"], spec.source, math.inf))
-    return 0.0, hi / per_unit
+    v = spec.value
+    answer = v.total_distance if isinstance(v, V.Trajectory) else (v.value if isinstance(v, V.Scalar) else 0.0)
+    return 0.0, max(hi / per_unit, 1.25 * answer)
 
 
 def scalar_gap(spec: OptionSpec, params: dict, x: float) -> float:

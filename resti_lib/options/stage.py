@@ -351,8 +351,7 @@ def _group_key(spec: OptionSpec) -> str:
     if spec.kind == "angle":
         return f"{spec.task}|{spec.source}|{o.quantity}"
     if spec.kind == "pose":
-        rel = "relative" if (o.premise is not None and o.premise_text is None) else "world"
-        return f"{spec.task}|{spec.source}|pose|{rel}"
+        return f"{spec.task}|{spec.source}|pose"
     return f"{spec.task}|{spec.source}|{spec.kind}"
 
 
@@ -576,44 +575,37 @@ class Stage:
         return GroupModel("box", fm, info)
 
     def _fit_pose(self, g: str, ps: list[RowPlan]) -> GroupModel:
+        """Poses as a motion from the premise: the translation in the premise's horizontal heading
+        frame (forward, left, up; a rate over the window for vehicles) and the rotation vector of the
+        relative rotation ``R R_p^T``, jointly. A question without a printed premise (the reference
+        camera as the identity) has the identity as premise."""
         kp = self.params["kinds"]["pose"]
         src = ps[0].spec.source
-        relative = g.endswith("|relative")
         up = np.asarray(kp["world_up"], float)
         rate = bool(per_source(kp["rate"], src, False))
-        info: dict = {"relative": relative, "rate": rate, "R0": {}, "frame": {}, "win": {}}
+        info: dict = {"rate": rate, "R0": {}, "frame": {}, "win": {}}
         F, Hh, W = [], [], []
         for p in ps:
             v: V.Pose = p.spec.value
             o = p.spec.obs
-            rng = row_rng(self.seed, p.rid, "preimage")
-            R0 = rotation_preimage(v.R, v.decimals, rng)
+            R0 = rotation_preimage(v.R, v.decimals, row_rng(self.seed, p.rid, "preimage"))
             info["R0"][p.rid] = R0
-            t0 = np.array(v.t, float)
             win = o.window_s if (o.window_s and o.window_s > 0) else 1.0
             info["win"][p.rid] = win
-            h_t = 0.5 * 10.0 ** -v.decimals
-            if relative or o.premise is None:
-                rv = Rotation.from_matrix(R0).as_rotvec()
-                scale = win if rate else 1.0
-                F.append([*(t0 / scale), *rv])
-                Hh.append([h_t / scale] * 3 + [h_t] * 3)
-            else:
-                P = o.premise
-                Rp, tp = so3(P[:3, :3]), P[:3, 3]
+            scale = win if rate else 1.0
+            if o.premise is not None and o.premise_text is not None:
+                Rp, tp = so3(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
                 Hf = horizontal_frame(Rp, up, 2)
-                info["frame"][p.rid] = (Hf, tp, heading_deg(Rp, up, 2))
-                dpsi = float(V.wrap_degrees(heading_deg(R0, up, 2) - heading_deg(Rp, up, 2)))
-                d = Hf.T @ (t0 - tp)
-                scale = win if rate else 1.0
-                F.append([*(d / scale), dpsi])
-                Hh.append([h_t / scale] * 3 + [0.3])
+            else:  # relative poses: the reference camera is the identity
+                Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)
+            info["frame"][p.rid] = (Rp, tp, Hf)
+            d = Hf.T @ (np.array(v.t, float) - tp) / scale
+            r = Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
+            h_t = 0.5 * 10.0 ** -v.decimals
+            F.append([*d, *r])
+            Hh.append([h_t / scale] * 3 + [h_t] * 3)
             W.append([_log_window(p.spec)])
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
-        if not relative:
-            cut = circular_cut(F[:, 3])
-            info["cut"] = cut
-            F[:, 3] = on_cut_line(F[:, 3], cut)
         fm = FieldModel.fit([p.rid for p in ps], F, Hh, W if np.isfinite(W).all() else None,
                             knn=self.model["knn"], shrink=self.model["copula_shrink"])
         return GroupModel("pose", fm, info)
@@ -693,7 +685,8 @@ class Stage:
             new["Answer"] = letter
             out.append(new)
             ev.append({"rid": p.rid, "task": p.spec.task, "source": p.spec.source, "kind": p.spec.kind,
-                       "group": p.group, "letter": letter, "target_rank": p.rank,
+                       "group": p.group, "letter": letter, "target_rank": p.rank, "rank": _signed_rank(p, strings),
+                       "fixed": ",".join(p.fixed), "answer_is_fixed": p.answer_is_fixed,
                        "gamma": self.groups[p.group].info.get("gamma", 1.0) if p.group in self.groups else None,
                        **p.evidence})
         return out, pd.DataFrame(ev)
@@ -970,30 +963,15 @@ class Stage:
             strings += pick
             n_draw = 4 - len(pick)
         if n_draw:
-            if info["relative"] or p.rid not in info["frame"]:
-                rv0 = Rotation.from_matrix(R0).as_rotvec()
-                f0 = np.concatenate([t0 / scale, rv0])
-                hh = [h_t / scale] * 3 + [h_t] * 3
-                B = self._draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
-                for b in B:
-                    T = np.eye(4)
-                    T[:3, :3] = Rotation.from_rotvec(b[3:6]).as_matrix()
-                    T[:3, 3] = b[:3] * scale
-                    strings.append(V.format_pose(T, v.decimals, compact=v.compact))
-            else:
-                Hf, tp, psi_p = info["frame"][p.rid]
-                up = np.asarray(self.params["kinds"]["pose"]["world_up"], float)
-                d0 = Hf.T @ (t0 - tp) / scale
-                dpsi0 = float(V.wrap_degrees(heading_deg(R0, up, 2) - psi_p))
-                y0 = float(on_cut_line(dpsi0, info["cut"]))
-                cells = [(d0[j] - h_t / scale, d0[j] + h_t / scale) for j in range(3)] + [(y0 - 0.3, y0 + 0.3)]
-                B = self._draw(gm, p.rid, cells, s, rng, n=n_draw)
-                for b in B:
-                    dpsi = float(from_cut_line(b[3], info["cut"]))
-                    T = np.eye(4)
-                    T[:3, :3] = rot(up, float(V.wrap_degrees(dpsi - dpsi0))) @ R0
-                    T[:3, 3] = tp + Hf @ (b[:3] * scale)
-                    strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+            Rp, tp, Hf = info["frame"][p.rid]
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
+            hh = [h_t / scale] * 3 + [h_t] * 3
+            B = self._draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
+            for b in B:
+                T = np.eye(4)
+                T[:3, :3] = Rotation.from_rotvec(b[3:6]).as_matrix() @ Rp
+                T[:3, 3] = tp + Hf @ (b[:3] * scale)
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         self._check_poses(p, [V.parse(t) for t in strings] + [v])
         return strings + [spec.detail]
 
@@ -1050,6 +1028,19 @@ class Stage:
                 out[p.rid] = [t for t in usable if t != p.spec.detail]
                 p.evidence["same_video_reveal"] = {"revealed_by": prem[key][0], "other_premises": len(out[p.rid])}
         return out
+
+
+def _signed_rank(p: RowPlan, strings: list[str]) -> int | None:
+    """The answer's signed-value rank among the five (1 = smallest) for one-dimensional answers."""
+    if p.spec.kind not in ONE_D:
+        return None
+
+    def key(t):
+        v = V.parse(t)
+        return v.total_distance if isinstance(v, V.Trajectory) else v.value
+
+    vals = sorted(key(t) for t in strings)
+    return vals.index(key(p.spec.detail)) + 1
 
 
 def _reprint(text: str, like: V.Pose) -> str:
