@@ -20,20 +20,18 @@ Two pieces make that distribution:
   independence for small groups. Conditioning on a row's covariates gives the distribution of its
   fields given what the question states.
 
-Drawing (standardised conditional scores ``z``): an anchor ``c ~ N(0, (1 - s²) I)`` and five
-candidates ``z_j = c + s·e_j`` are exchangeable and each is ``N(0, I)``. Given the answer's ``z_a``,
-the anchor is ``N((1 - s²) z_a, s²(1 - s²) I)`` and the other four follow. For one field with a
-target signed-value rank, :func:`anchor_given_rank` and :func:`truncated` draw the same model
-conditioned on the answer being the ``k``-th smallest.
+Drawing (standardised conditional scores ``z``, see :class:`resti_lib.options.stage.RowDraw`): an
+anchor ``c ~ N(0, (1 - s²) I)`` and five candidates ``z_j = c + s·e_j`` are exchangeable and each is
+``N(0, I)``. Given the answer's ``z_a``, the anchor is ``N((1 - s²) z_a, s²(1 - s²) I)`` and the
+other four follow.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import log_ndtr, ndtr, ndtri
+from scipy.special import ndtr, ndtri
 
 _P_MIN = 1e-12
 
@@ -197,7 +195,8 @@ class Copula:
         if n < 3 or m == 1:
             return cls(np.eye(m), d)
         s = np.clip(s, -6, 6)
-        c = np.corrcoef(s, rowvar=False)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a constant field correlates with nothing
+            c = np.corrcoef(s, rowvar=False)
         c = np.where(np.isfinite(c), c, 0.0)
         np.fill_diagonal(c, 1.0)
         w = n / (n + shrink)
@@ -218,102 +217,4 @@ class Copula:
         return mu, np.linalg.cholesky(C)
 
 
-# ------------------------------------------------------------------------------ drawing pieces
-
-def others_given_answer(z_a: np.ndarray, s: float, rng: np.random.Generator, n: int = 4) -> np.ndarray:
-    """``n`` standardised draws exchangeable with the answer's ``z_a`` (shape (n, d))."""
-    z_a = np.atleast_1d(np.asarray(z_a, dtype=float))
-    c = (1.0 - s * s) * z_a + s * math.sqrt(1.0 - s * s) * rng.standard_normal(z_a.shape)
-    return c[None, :] + s * rng.standard_normal((n, z_a.size))
-
-
-def prior_draws(d: int, s: float, rng: np.random.Generator, n: int) -> np.ndarray:
-    """``n`` exchangeable standardised draws with no designated member (shape (n, d))."""
-    c = math.sqrt(max(1.0 - s * s, 1e-6)) * rng.standard_normal(d)
-    return c[None, :] + s * rng.standard_normal((n, d))
-
-
-def anchor_given_rank(z_a: float, k: int, n_cont: int, s: float, rng: np.random.Generator,
-                      grid: int = 1601) -> float:
-    """Anchor ``c`` from its posterior given that the rank-``k`` of ``n_cont`` draws equals ``z_a``."""
-    prior_sd = math.sqrt(max(1.0 - s * s, 1e-6))
-    lo, hi = min(z_a, 0.0) - 8.0 * s - 4 * prior_sd, max(z_a, 0.0) + 8.0 * s + 4 * prior_sd
-    c = np.linspace(lo, hi, grid)
-    z = (z_a - c) / s
-    logw = -0.5 * (c / prior_sd) ** 2 - 0.5 * z * z
-    if k > 1:
-        logw += (k - 1) * log_ndtr(z)
-    if n_cont - k > 0:
-        logw += (n_cont - k) * log_ndtr(-z)
-    w = np.exp(logw - logw.max())
-    cdf = np.cumsum(w)
-    i = min(int(np.searchsorted(cdf, rng.random() * cdf[-1])), grid - 1)
-    step = (hi - lo) / (grid - 1)
-    return float(c[i] + (rng.random() - 0.5) * step)
-
-
-def truncated(c: float, s: float, bound: float, n: int, below: bool, rng: np.random.Generator) -> np.ndarray:
-    """``n`` draws of ``N(c, s²)`` truncated to ``< bound`` (below) or ``> bound``."""
-    if n == 0:
-        return np.zeros(0)
-    zb = (bound - c) / s
-    if below:
-        p = float(ndtr(zb))
-        z = ndtri(np.clip(rng.random(n) * p, 1e-300, 1 - 1e-16))
-        z = np.minimum(z, zb)
-    else:
-        p = float(ndtr(-zb))
-        z = -ndtri(np.clip(rng.random(n) * p, 1e-300, 1 - 1e-16))
-        z = np.maximum(z, zb)
-    return c + s * z
-
-
-def ranked_others_batch(z_a: np.ndarray, k: int, s: float, rng: np.random.Generator, n_cont: int = 5,
-                        grid: int = 401) -> np.ndarray:
-    """Vectorised :func:`ranked_others`: for each answer score in ``z_a`` (K,), the ``n_cont - 1``
-    other draws when the answer has rank ``k`` (returns (K, n_cont - 1))."""
-    z_a = np.asarray(z_a, dtype=float)
-    K = z_a.size
-    prior_sd = math.sqrt(max(1.0 - s * s, 1e-6))
-    lo = min(float(z_a.min()), 0.0) - 8.0 * s - 4 * prior_sd
-    hi = max(float(z_a.max()), 0.0) + 8.0 * s + 4 * prior_sd
-    c = np.linspace(lo, hi, grid)
-    z = (z_a[:, None] - c[None, :]) / s
-    logw = -0.5 * (c[None, :] / prior_sd) ** 2 - 0.5 * z * z
-    if k > 1:
-        logw += (k - 1) * log_ndtr(z)
-    if n_cont - k > 0:
-        logw += (n_cont - k) * log_ndtr(-z)
-    w = np.exp(logw - logw.max(axis=1, keepdims=True))
-    cdf = np.cumsum(w, axis=1)
-    idx = np.minimum((cdf < rng.random(K)[:, None] * cdf[:, -1:]).sum(axis=1), grid - 1)
-    step = (hi - lo) / (grid - 1)
-    anchor = c[idx] + (rng.random(K) - 0.5) * step
-    out = []
-    for n_side, below in ((k - 1, True), (n_cont - k, False)):
-        if n_side == 0:
-            continue
-        zb = (z_a - anchor) / s
-        if below:
-            p = ndtr(zb)
-            q = ndtri(np.clip(rng.random((K, n_side)) * p[:, None], 1e-300, 1 - 1e-16))
-            q = np.minimum(q, zb[:, None])
-        else:
-            p = ndtr(-zb)
-            q = -ndtri(np.clip(rng.random((K, n_side)) * p[:, None], 1e-300, 1 - 1e-16))
-            q = np.maximum(q, zb[:, None])
-        out.append(anchor[:, None] + s * q)
-    return np.concatenate(out, axis=1) if out else np.zeros((K, 0))
-
-
-def ranked_others(z_a: float, k: int | None, s: float, rng: np.random.Generator, n_cont: int = 5
-                  ) -> np.ndarray:
-    """The ``n_cont - 1`` other standardised draws of one field when the answer has rank ``k``
-    (1 = smallest; ``None``: a uniform rank)."""
-    kk = int(k) if k is not None else int(rng.integers(1, n_cont + 1))
-    c = anchor_given_rank(z_a, kk, n_cont, s, rng)
-    return np.concatenate([truncated(c, s, z_a, kk - 1, True, rng), truncated(c, s, z_a, n_cont - kk, False, rng)])
-
-
-__all__ = ["Marginal", "Map1D", "Copula", "circular_cut", "on_cut_line", "from_cut_line", "others_given_answer",
-           "prior_draws", "anchor_given_rank", "truncated", "ranked_others", "ranked_others_batch"]
+__all__ = ["Marginal", "Map1D", "Copula", "circular_cut", "on_cut_line", "from_cut_line"]

@@ -24,10 +24,14 @@ centre or translation, rotation and size) and physical possibility given the que
 speed of a distance over its window, acceleration, sizes, depths). When the draws cannot meet the
 constraints the spread widens in steps (recorded in the evidence).
 
-Schedules: letters are balanced per task, and the answer's signed-value rank per (task, source) for
-one-dimensional answers. Exact zeros (a stationary object) and ``no significant movement`` are
-fixed slots: that string is placed in every row whose answer it is and in ``zero_slot_ratio`` times
-as many other rows of the group, so it is the answer in about one row in five where it appears.
+Letters are balanced per task by a schedule. The answer's signed-value rank among the five is not
+scheduled: it follows from the exchangeable draw (an extreme answer is more often the extreme
+candidate, as any of five exchangeable values would be), so it is uniform over the rows without
+tying an answer to a rank its value makes unlikely.
+
+Exact zeros (a stationary object) and ``no significant movement`` are fixed slots: that string is
+placed in every row whose answer it is and in ``zero_slot_ratio`` times as many other rows of the
+group, so it is the answer in about one row in five where it appears.
 Rows of one video that ask for the same answer share one candidate set, so another question of the
 same video cannot reveal it; a Pose answer that another question of the same video prints as its
 premise gets, where it can, other premise poses of that video as distractors.
@@ -48,7 +52,7 @@ from .. import values as V
 from ..errors import InputError
 from ..rng import row_rng, stable_seed
 from .builders import OptionError
-from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line, ranked_others_batch
+from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
 from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_option_params, per_source, pose_floors,
                    pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
 
@@ -252,28 +256,26 @@ class RowDraw:
     L: np.ndarray
     last_z: np.ndarray | None = None
     last_za: np.ndarray | None = None
+    drawn: list = field(default_factory=list)  # every standardised draw of the row, kept or not
 
-    def draw(self, cells: list, s: float, rng: np.random.Generator, *, n: int = 4, rank=None, prior: bool = False,
-             gamma: float = 1.0, batch: int | None = None) -> np.ndarray:
+    def draw(self, cells: list, s: float, rng: np.random.Generator, *, n: int = 4, prior: bool = False,
+             batch: int | None = None) -> np.ndarray:
         """Base values (n, d) — or (batch, n, d) — given the answer's base rounding ``cells``
         [(lo, hi), ...]; ``prior``: no designated answer (fixed-slot rows)."""
         d = len(self.maps)
         K = batch or 1
         if prior:
             c = math.sqrt(max(1.0 - s * s, 1e-6)) * rng.standard_normal((K, 1, d))
-            z = gamma * (c + s * rng.standard_normal((K, n, d)))
+            z = c + s * rng.standard_normal((K, n, d))
             self.last_za = None
         else:
             u_a = np.column_stack([m.cell_score(lo, hi, rng, K) for m, (lo, hi) in zip(self.maps, cells)])
             z_a = np.linalg.solve(self.L, (u_a - self.mu[None, :]).T).T  # (K, d)
-            if d == 1 and rank is not None:
-                z = gamma * ranked_others_batch(z_a[:, 0] / gamma, int(rank), s, rng, n_cont=n + 1)[:, :, None]
-            else:
-                zs = z_a / gamma
-                c = (1.0 - s * s) * zs + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
-                z = gamma * (c[:, None, :] + s * rng.standard_normal((K, n, d)))
+            c = (1.0 - s * s) * z_a + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
+            z = c[:, None, :] + s * rng.standard_normal((K, n, d))
             self.last_za = z_a
         self.last_z = z
+        self.drawn.append(z.reshape(-1, d))
         u = self.mu[None, None, :] + z @ self.L.T
         out = np.stack([self.maps[j].values(u[:, :, j].ravel()).reshape(K, n) for j in range(d)], axis=-1)
         return out if batch else out[0]
@@ -324,7 +326,6 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.
 class RowPlan:
     spec: OptionSpec
     group: str = ""
-    rank: int | None = None
     letter: str = "A"
     fixed: tuple = ()
     answer_is_fixed: bool = False
@@ -381,7 +382,7 @@ class Stage:
         self.groups: dict[str, GroupModel] = {}
         self._cur = None
         self._last = None
-        self.gammas: dict = {}
+        self.s_factors: dict = {}
         self._plan()
 
     # -------------------------------------------------------------------- planning
@@ -405,14 +406,6 @@ class Stage:
             fit = getattr(self, f"_fit_{kind}", None)
             self.groups[g] = fit(g, ps) if fit else GroupModel(kind)
         self._share_sets()
-        ranked: dict[tuple, dict] = defaultdict(dict)
-        for p in self.plans:
-            if p.spec.kind in ONE_D and p.share_with is None:
-                ranked[(p.spec.task, p.spec.source)][p.rid] = self._allowed_ranks(p)
-        for (task, source), allowed in sorted(ranked.items()):
-            sched = constrained_schedule(allowed, [1, 2, 3, 4, 5], seed=self.seed, group=f"ranks|{task}|{source}")
-            for rid, k in sched.items():
-                self.by_id[rid].rank = k
         for task in sorted({p.spec.task for p in self.plans}):
             ids = {p.rid: set(LETTERS) for p in self.plans if p.spec.task == task}
             sched = constrained_schedule(ids, list(LETTERS), seed=self.seed, group=f"letters|{task}")
@@ -429,15 +422,6 @@ class Stage:
                 p.share_with = first[key]
             else:
                 first.setdefault(key, p.rid)
-
-    def _allowed_ranks(self, p: RowPlan) -> set:
-        if p.answer_is_fixed:
-            return {1}
-        lo = 1 + len(p.fixed)
-        if p.spec.kind == "scalar":
-            below = round(p.spec.value.value / p.spec.ulp) - 1  # printable values above zero below the answer
-            return set(range(lo, min(5, lo + max(0, below)) + 1))
-        return set(range(lo, 6))
 
     # -------------------------------------------------------------------- group fits
     def _fit_scalar(self, g: str, ps: list[RowPlan]) -> GroupModel:
@@ -616,16 +600,20 @@ class Stage:
         if self._cur is None or self._cur[0] != (id(gm), rid):
             self._cur = ((id(gm), rid), gm.fields.prepare(rid))
         rd = self._cur[1]
-        out = rd.draw(cells, s, rng, gamma=gm.info.get("gamma_now", 1.0), **kw)
+        out = rd.draw(cells, s, rng, **kw)
         self._last = rd
         return out
 
-    def calibrate(self, *, sample: int = 40, rounds: int = 1) -> dict:
-        """Per group, the scale ``gamma`` of the exchangeable model under which the distractors that
-        meet the constraints are as spread (in standardised score space) as the answers.
+    def calibrate(self, *, sample: int = 60, rounds: int = 2) -> dict:
+        """Per group, the within-set spread under which the kept candidate sets are as spread around
+        their answer as the model's unconstrained sets are.
 
-        Each round builds a seeded sample of the group's rows and moves ``gamma`` by the ratio of the
-        answers' to the distractors' root mean square score. Returns group -> gamma.
+        Separation and plausibility constraints reject sets whose candidates crowd each other, so the
+        sets kept are wider than the model's; their distractors would then be less typical than
+        the answer. Each round builds a seeded sample of the group's rows and scales the spread ``s``
+        by the root mean square distance from the answer (standardised scores) of everything drawn
+        for those rows over that of the distractors kept — paired over the same answers, so their
+        own spread cancels. Returns group -> spread factor.
         """
         out = {}
         by_group: dict[str, list[RowPlan]] = defaultdict(list)
@@ -638,10 +626,10 @@ class Stage:
                 continue
             rng = np.random.default_rng(stable_seed(self.seed, "calibrate", g))
             pick = [ps[int(i)] for i in sorted(rng.permutation(len(ps))[:sample])]
-            gamma = 1.0
+            factor = 1.0
             for _ in range(rounds):
-                gm.info["gamma"] = gamma
-                za, zd = [], []
+                gm.info["s_factor"] = factor
+                drawn, kept = [], []
                 for p in pick:
                     saved = dict(p.evidence)
                     try:
@@ -650,22 +638,24 @@ class Stage:
                         continue
                     finally:
                         p.evidence = saved
-                    if self._last is not None and self._last.last_za is not None:
-                        za.append(self._last.last_za)
-                        zd.append(self._last.last_z)
-                if len(za) < 10:
+                    rd = self._last
+                    if rd is not None and rd.last_za is not None and rd.drawn:
+                        za = np.asarray(rd.last_za).reshape(1, -1)
+                        drawn.append(((np.concatenate(rd.drawn) - za) ** 2).ravel())
+                        kept.append(((np.asarray(rd.last_z).reshape(-1, za.shape[1]) - za) ** 2).ravel())
+                if len(kept) < 10:
                     break
-                ra = math.sqrt(float(np.mean(np.concatenate([x.ravel() for x in za]) ** 2)))
-                rd = math.sqrt(float(np.mean(np.concatenate([x.ravel() for x in zd]) ** 2)))
-                gamma = float(np.clip(gamma * ra / max(rd, 1e-6), 0.4, 1.0))
-            gm.info["gamma"] = gamma
-            out[g] = gamma
+                ratio = math.sqrt(float(np.mean(np.concatenate(drawn))) / max(float(np.mean(np.concatenate(kept))),
+                                                                              1e-12))
+                factor = float(np.clip(factor * ratio, 0.5, 1.0))
+            gm.info["s_factor"] = factor
+            out[g] = factor
         return out
 
     def build(self, progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
         built: dict[str, list[str]] = {}
         out, ev = [], []
-        self.gammas = self.calibrate()
+        self.s_factors = self.calibrate()
         it = self.plans
         if progress:
             from tqdm.auto import tqdm
@@ -685,9 +675,9 @@ class Stage:
             new["Answer"] = letter
             out.append(new)
             ev.append({"rid": p.rid, "task": p.spec.task, "source": p.spec.source, "kind": p.spec.kind,
-                       "group": p.group, "letter": letter, "target_rank": p.rank, "rank": _signed_rank(p, strings),
+                       "group": p.group, "letter": letter, "rank": _signed_rank(p, strings),
                        "fixed": ",".join(p.fixed), "answer_is_fixed": p.answer_is_fixed,
-                       "gamma": self.groups[p.group].info.get("gamma", 1.0) if p.group in self.groups else None,
+                       "s_factor": self.groups[p.group].info.get("s_factor", 1.0) if p.group in self.groups else None,
                        **p.evidence})
         return out, pd.DataFrame(ev)
 
@@ -708,24 +698,22 @@ class Stage:
             return self._build_label(p, record)
         gm = self.groups[p.group]
         builder = getattr(self, f"_build_{kind}")
-        s0 = float(self.model["s"])
+        s0 = float(self.model["s"]) * gm.info.get("s_factor", 1.0)
         tries = int(self.model["max_tries"]) // (4 if calibrating else 1)
         if kind in ("scalar", "angle"):
             tries = max(2, tries // 16)  # each try is a batch of 32 sets
         rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else "options")
         last = "no candidates drawn"
-        g0 = gm.info.get("gamma", 1.0)
-        # widening steps: the spread, then the calibrated scale, then the target rank are given up
-        tiers = ((s0, g0, True), (min(0.8, 1.5 * s0), g0, True), (min(0.8, 1.5 * s0), 1.0, False), (0.9, 1.5, False))
-        for tier, (s, gamma, keep_rank) in enumerate(tiers):
-            gm.info["gamma_now"] = gamma
+        # widening steps: a wider spread, then (relaxed) same-video premises no longer imposed
+        tiers = ((s0, True), (min(0.8, 1.5 * s0), True), (min(0.8, 1.5 * s0), False), (0.9, False))
+        for tier, (s, strict) in enumerate(tiers):
             for attempt in range(tries):
                 try:
-                    strings = builder(p, gm, s, rng, keep_rank, reveals)
+                    strings = builder(p, gm, s, rng, strict, reveals)
                 except _Reject as e:
                     last = str(e)
                     continue
-                p.evidence.update({"s": s, "tries": tier * tries + attempt + 1, "rank_kept": keep_rank,
+                p.evidence.update({"s": s, "tries": tier * tries + attempt + 1, "strict": strict,
                                    "widened": tier > 0})
                 return strings
         raise OptionError(f"{p.rid} ({p.spec.task}, {p.spec.source}): no options under the constraints ({last})")
@@ -744,7 +732,7 @@ class Stage:
             good &= (srt[:, 0] + 360.0 - srt[:, -1]) >= gap_of(srt[:, :1])[:, 0] - 1e-9
         return list(np.flatnonzero(good))
 
-    def _build_scalar(self, p, gm, s, rng, keep_rank, reveals):
+    def _build_scalar(self, p, gm, s, rng, strict, reveals):
         spec = p.spec
         v: V.Scalar = spec.value
         eps = gm.info["eps"]
@@ -761,8 +749,7 @@ class Stage:
             off = gm.info["offset"][p.rid]
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
-            rank = (p.rank - len(fixed)) if (keep_rank and p.rank is not None) else None
-            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, rank=rank, batch=K)[:, :, 0]
+            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K)[:, :, 0]
         dec = spec.decimals
         xs = np.exp(b + off) - eps
         pv = np.round(xs, dec)
@@ -809,7 +796,7 @@ class Stage:
         if circular and (xs[0] + 360.0 - xs[-1]) < gap(xs[0]) - 1e-12:
             raise _Reject("two candidates closer than the separation floor across ±180")
 
-    def _build_angle(self, p, gm, s, rng, keep_rank, reveals):
+    def _build_angle(self, p, gm, s, rng, strict, reveals):
         spec = p.spec
         v: V.Scalar = spec.value
         x = v.value
@@ -819,9 +806,8 @@ class Stage:
             return float(np.arctanh(np.clip(t / 180.0, -1 + 1e-12, 1 - 1e-12)))
 
         cell = (b(max(x - h, -180.0)), b(min(x + h, 180.0 - 1e-9)))
-        rank = p.rank if keep_rank else None
         K = 32
-        z = self._draw(gm, p.rid, [cell], s, rng, n=4, rank=rank, batch=K)[:, :, 0]
+        z = self._draw(gm, p.rid, [cell], s, rng, n=4, batch=K)[:, :, 0]
         th = 180.0 * np.tanh(z)
         pv = np.round(V.wrap_degrees(th), spec.decimals)
         pv = np.where(pv >= 180.0, -180.0, pv)
@@ -840,7 +826,7 @@ class Stage:
             return strings
         raise _Reject("no drawn set met the separation constraints")
 
-    def _build_trajectory(self, p, gm, s, rng, keep_rank, reveals):
+    def _build_trajectory(self, p, gm, s, rng, strict, reveals):
         spec = p.spec
         v: V.Trajectory = spec.value
         fixed = list(p.fixed)
@@ -864,8 +850,7 @@ class Stage:
             off = gm.info["offset"][p.rid]
             x = v.total_distance
             cell = (math.log(max(x - 0.05, 0.0) + 0.1) - off, math.log(x + 0.05 + 0.1) - off)
-            rank = (p.rank - len(fixed)) if (keep_rank and p.rank is not None) else None
-            b = self._draw(gm, p.rid, [cell], s, rng, n=n_cont - 1, rank=rank)[:, 0]
+            b = self._draw(gm, p.rid, [cell], s, rng, n=n_cont - 1)[:, 0]
             totals = np.exp(b + off) - 0.1
             strings = [fmt(float(t)) for t in totals]
             structures = {V.parse(t).structure for t in strings}
@@ -884,7 +869,7 @@ class Stage:
         return alls
 
     # -- structured kinds
-    def _build_box(self, p, gm, s, rng, keep_rank, reveals):
+    def _build_box(self, p, gm, s, rng, strict, reveals):
         spec = p.spec
         v: V.Box = spec.value
         info = gm.info
@@ -947,7 +932,7 @@ class Stage:
                 if box_separation(boxes[i], boxes[j], fl) < 1.0:
                     raise _Reject("two boxes within the separation floors of each other")
 
-    def _build_pose(self, p, gm, s, rng, keep_rank, reveals):
+    def _build_pose(self, p, gm, s, rng, strict, reveals):
         spec = p.spec
         v: V.Pose = spec.value
         info = gm.info
@@ -956,7 +941,7 @@ class Stage:
         scale = win if info["rate"] else 1.0
         h_t = 0.5 * 10.0 ** -v.decimals
         strings: list[str] = []
-        fixed_reveals = list(reveals.get(p.rid, [])) if keep_rank else []  # relaxed tiers draw them all
+        fixed_reveals = list(reveals.get(p.rid, [])) if strict else []  # relaxed tiers draw them all
         n_draw = 4
         if fixed_reveals:
             pick = [fixed_reveals[int(i)] for i in rng.permutation(len(fixed_reveals))[:4]]

@@ -75,12 +75,6 @@ def _floor_bound(values: np.ndarray, gaps: np.ndarray) -> tuple[float, str, int,
     return best, where, inside, slots
 
 
-def _heading(R: np.ndarray, up: np.ndarray) -> float:
-    from .stage import heading_deg
-
-    return heading_deg(R, up, 2)
-
-
 def structural_leaks(records: list[dict], params: dict | None = None) -> pd.DataFrame:
     """One row per (task, source, leak) that options cannot remove (see the module docstring)."""
     params = params or load_option_params()
@@ -123,25 +117,10 @@ def structural_leaks(records: list[dict], params: dict | None = None) -> pd.Data
                 if zeros and zeros / len(ss) > CHANCE:
                     carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
                     add(task, source, "zero_slot", n, carriers, zeros / carriers,
-                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in {carriers} rows",
+                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in "
+                        f"{carriers} rows",
                         "evaluation subset keeps zero answers at one row in five")
         if kind == "pose":
-            # heading changes from the premise concentrated below the printed rotation's resolution:
-            # candidates' printed rotations must differ, so one near-zero change fits per row
-            dpsi, gaps = [], []
-            for s in sp:
-                o = s.obs
-                if o.premise is not None and o.premise_text is not None:
-                    up = np.asarray(params["kinds"]["pose"]["world_up"], float)
-                    d = _heading(np.array(s.value.R), up) - _heading(o.premise[:3, :3], up)
-                    dpsi.append(float(V.wrap_degrees(d)))
-                    gaps.append(math.degrees(10.0 ** -s.decimals))
-            if len(dpsi) >= 5:
-                bound, where, inside, slots = _floor_bound(np.array(dpsi), np.array(gaps))
-                if bound > CHANCE and inside >= 5:
-                    add(task, source, "floor_concentration", n, inside, 1.0 / slots,
-                        f"heading change from the premise (printed rotations resolve {gaps[0]:.2f} degrees): {where}",
-                        "none by options (print rotations at more decimals in the question contract)")
             same = 0
             for s in sp:
                 o = s.obs
