@@ -131,55 +131,10 @@ def recover(target: Path) -> None:
         os.rename(prev, target)
 
 
-def build_release_options(accepted: list[dict], provenance: pd.DataFrame, *, seed: int = 0,
-                          overrides: dict | None = None) -> tuple[list[dict], pd.DataFrame]:
-    """The options of the release, built once by the option stage (:mod:`resti_lib.options.stage`,
-    the code ``resti reoption`` runs), and the provenance with each row's option evidence.
-
-    What the tasks know beyond the row (a provenance column ``option_spec``, JSON) is handed to the
-    stage. Questions, times and Answer Detail strings are unchanged.
-    """
-    from .options.spec import load_option_params
-    from .options.stage import build_options
-
-    extras = {}
-    if "option_spec" in provenance.columns:
-        for rid, spec in zip(provenance["resti_id"], provenance["option_spec"]):
-            if rid and isinstance(spec, str) and spec:
-                try:
-                    extras[rid] = json.loads(spec)
-                except json.JSONDecodeError:
-                    continue
-    rows, ev = build_options(accepted, seed=seed, params=load_option_params(overrides), extras=extras)
-    if len(ev):
-        by_id = {r["rid"]: {k: v for k, v in r.items() if k not in ("rid", "task", "source") and v == v}
-                 for r in ev.to_dict("records")}
-        prov = provenance.copy()
-        evid = []
-        for rid, e in zip(prov["resti_id"], prov["evidence"] if "evidence" in prov else [None] * len(prov)):
-            d = json.loads(e) if isinstance(e, str) and e else {}
-            if rid in by_id:
-                d["options"] = by_id[rid]
-            evid.append(json.dumps(d, sort_keys=True, ensure_ascii=False, default=_json_default))
-        prov["evidence"] = evid
-        provenance = prov
-    return rows, provenance
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, option_overrides: dict | None = None, seed: int = 0) -> dict:
-    """Build the options (:func:`build_release_options`), write the release atomically; returns the
-    validation object. ``option_overrides``: overrides of ``params/options.yaml``."""
+                  out_dir: str | Path) -> dict:
+    """Write the release atomically; returns the validation object. The rows carry the options the
+    task runs built through the option stage; they ship unchanged."""
     out_dir = Path(out_dir)
     recover(out_dir)
     check_invariants(legacy, accepted, excluded)
@@ -187,8 +142,6 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     accepted = sorted(accepted, key=lambda r: order[r["Legacy Row Key"]])
     excluded = sorted(excluded, key=lambda r: order[r["key"]])
     provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
-    if accepted:
-        accepted, provenance = build_release_options(accepted, provenance, seed=seed, overrides=option_overrides)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.tmp-"))
     try:
@@ -216,13 +169,11 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     return validation
 
 
-def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path, *,
-             option_overrides: dict | None = None, seed: int = 0) -> dict:
+def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
-    return write_release(accepted, excluded, provenance, legacy, out_dir, option_overrides=option_overrides,
-                         seed=seed)
+    return write_release(accepted, excluded, provenance, legacy, out_dir)
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

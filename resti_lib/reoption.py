@@ -32,7 +32,7 @@ import pandas as pd
 from . import LETTERS, SOURCES, TASKS, __version__, paths
 from .figures import save_figure
 from .io.benchmark import atomic_write_bytes, jsonl_text, load_release, rows_to_parquet_bytes
-from .options import builders as B
+from .options.stage import OptionError
 from .options.learned import LearnedConfig, attack_table_with_learned
 from .options.spec import load_option_params
 from .options.stage import build_options
@@ -47,19 +47,20 @@ class ReoptionError(RuntimeError):
 
 
 def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None = None,
-                     keep_on_failure: bool = False, extras: dict | None = None, progress: bool = False
+                     extras: dict | None = None, progress: bool = False
                      ) -> tuple[list[dict], pd.DataFrame]:
     """New candidates and letters for every row through the option stage
     (:func:`resti_lib.options.stage.build_options`); returns (rows, evidence).
 
-    ``options``: overrides of ``params/options.yaml`` (same nesting). ``keep_on_failure`` is kept
-    for callers of the earlier interface; a row whose options cannot be built stops the rebuild.
+    ``options``: overrides of ``params/options.yaml`` (same nesting). A row whose options cannot
+    be built stops the rebuild (a release's rows cannot be dropped here).
     """
     params = load_option_params(options)
     try:
-        return build_options(records, seed=seed, params=params, extras=extras, progress=progress)
-    except B.OptionError as e:
+        rows, ev, _ = build_options(records, seed=seed, params=params, extras=extras, progress=progress)
+    except OptionError as e:
         raise ReoptionError(str(e)) from None
+    return rows, ev
 
 
 # ------------------------------------------------------------------------------------ writing

@@ -59,7 +59,7 @@ def _implied_rate_attack(rows, windows) -> float:
 
 def test_displacements_conditioned_on_the_window_defeat_the_implied_rate():
     rows, windows = _displacement_rows()
-    out, ev = build_options(rows, seed=0)
+    out, ev, _ = build_options(rows, seed=0)
     acc = _implied_rate_attack(out, windows)
     assert binomtest(round(acc * len(out)), len(out), 0.2, alternative="greater").pvalue > 0.01, acc
     # the same attack against distractors drawn from the population of displacements, ignoring the
@@ -85,7 +85,7 @@ def test_orientation_options_at_least_one_degree_apart():
          "heading change of the camera?")
     rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(float(rng.normal(0, 3.0))), t1=19.8)
             for i in range(80)]
-    out, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(rows, seed=0)
     for r in out:
         a = np.array([V.parse(s).value for s in r["Candidates"].values()])
         d = np.abs((a[:, None] - a[None, :] + 180.0) % 360.0 - 180.0)
@@ -119,7 +119,7 @@ def _box_rows(n=160, seed=3):
 
 def test_box_edges_drawn_jointly():
     rows, logd, cov = _box_rows()
-    out, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(rows, seed=0)
     dist = np.array([np.log(V.parse(s).lwh) for r in out for L, s in r["Candidates"].items() if L != r["Answer"]])
     corr = np.corrcoef(dist, rowvar=False)
     assert corr[0, 1] > 0.6 and corr[0, 2] > 0.6, corr
@@ -159,7 +159,7 @@ def test_poses_drawn_as_motion_from_the_premise():
         rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
                          video=f"seg{i}_camera_1.mp4", t0=1 + w, t1=1 + w))
         prem.append((V.parse(ptxt).matrix, w))
-    out, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(rows, seed=0)
     hits_near, hits_rate = 0.0, 0.0
     for r, (P, w) in zip(out, prem):
         d = {L: np.linalg.norm(np.array(V.parse(s).t) - P[:3, 3]) for L, s in r["Candidates"].items()}
@@ -191,7 +191,7 @@ def test_rows_of_one_video_asking_one_answer_share_their_candidates():
     rows = [_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(float(rng.uniform(0.3, 2.0)), "m"),
                  video=f"scene{i % 20:04d}_00.mp4") for i in range(40)]
     rows.append({**rows[3], "ReSTI ID": "dup", "Legacy Row Key": "kdup", "time_start": 9.0, "time_end": 9.0})
-    out, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(rows, seed=0)
     assert sorted(out[3]["Candidates"].values()) == sorted(out[-1]["Candidates"].values())
 
 
@@ -213,7 +213,7 @@ def test_repeated_answers_still_get_valid_options():
     q = "What is the magnitude of the average velocity of the camera between t=3 s and t=9 s? (unit: m/s)"
     rows = [_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(base[i % 60], "m/s"),
                  video=f"seg{i}_camera_1.mp4", t0=3.0, t1=9.0) for i in range(120)]
-    out, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(rows, seed=0)
     for r in out:
         p = parse_row(r, r["ReSTI ID"])
         assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["distinct_strings"](p) is None
@@ -221,9 +221,9 @@ def test_repeated_answers_still_get_valid_options():
 
 def test_same_input_and_seed_same_options():
     rows, _ = _displacement_rows(60)
-    a, _ = build_options(rows, seed=1)
-    b, _ = build_options(rows, seed=1)
-    c, _ = build_options(rows, seed=2)
+    a, _, _ = build_options(rows, seed=1)
+    b, _, _ = build_options(rows, seed=1)
+    c, _, _ = build_options(rows, seed=2)
     assert json.dumps(a) == json.dumps(b) and json.dumps(a) != json.dumps(c)
 
 

@@ -51,12 +51,17 @@ from .. import LETTERS
 from .. import values as V
 from ..errors import InputError
 from ..rng import row_rng, stable_seed
-from .builders import OptionError
 from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
 from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_option_params, per_source, pose_floors,
                    pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
 
 WINDOWED = ("displacement", "path_length", "trajectory")
+
+
+class OptionError(RuntimeError):
+    """A row's candidates could not be built under the constraints (it is then excluded, or the
+    rebuild of a release stops)."""
+
 ONE_D = ("scalar", "angle", "trajectory")
 
 
@@ -652,9 +657,13 @@ class Stage:
             out[g] = factor
         return out
 
-    def build(self, progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
+    def build(self, progress: bool = False, on_failure: str = "raise") -> tuple[list[dict], pd.DataFrame, dict]:
+        """Build every row; returns (rows, evidence, failed). ``on_failure``: ``raise`` stops at a
+        row whose options cannot meet the constraints; ``skip`` leaves its candidates empty and
+        names it in ``failed`` (rid -> problem), for the caller to exclude."""
         built: dict[str, list[str]] = {}
         out, ev = [], []
+        failed: dict[str, str] = {}
         self.s_factors = self.calibrate()
         it = self.plans
         if progress:
@@ -667,7 +676,14 @@ class Stage:
                 strings = list(built[p.share_with])
                 p.evidence.update({"shared_with": p.share_with})
             else:
-                strings = self._build_row(p, r, reveals)
+                try:
+                    strings = self._build_row(p, r, reveals)
+                except OptionError as e:
+                    if on_failure != "skip":
+                        raise
+                    failed[p.rid] = str(e)
+                    out.append(dict(r))
+                    continue
                 built[p.rid] = strings
             cands, letter = self._letter(p, strings)
             new = dict(r)
@@ -679,7 +695,7 @@ class Stage:
                        "fixed": ",".join(p.fixed), "answer_is_fixed": p.answer_is_fixed,
                        "s_factor": self.groups[p.group].info.get("s_factor", 1.0) if p.group in self.groups else None,
                        **p.evidence})
-        return out, pd.DataFrame(ev)
+        return out, pd.DataFrame(ev), failed
 
     def _letter(self, p: RowPlan, strings: list[str]) -> tuple[dict, str]:
         """The answer at its scheduled letter; the others in a seeded random order."""
@@ -1074,12 +1090,13 @@ def _traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
 
 
 def build_options(records: list[dict], *, seed: int = 0, params: dict | None = None, extras: dict | None = None,
-                  progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
-    """Candidates and letters for every row (see the module docstring); returns (rows, evidence)."""
+                  progress: bool = False, on_failure: str = "raise") -> tuple[list[dict], pd.DataFrame, dict]:
+    """Candidates and letters for every row (see the module docstring); returns (rows, evidence,
+    failed) — see :meth:`Stage.build`."""
     if not records:
-        return [], pd.DataFrame()
-    return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress)
+        return [], pd.DataFrame(), {}
+    return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress, on_failure=on_failure)
 
 
-__all__ = ["Stage", "build_options", "constrained_schedule", "rotation_preimage", "box_yaw", "heading_deg",
+__all__ = ["OptionError", "Stage", "build_options", "constrained_schedule", "rotation_preimage", "box_yaw", "heading_deg",
            "centre_fields", "centre_from_fields"]

@@ -84,7 +84,7 @@ def run_task(task: str, params: dict) -> TaskRun:
         o.defects = list(dict.fromkeys([*o.defects, *d, *shortcuts.get(position[o.row], [])]))
         if ev:
             o.evidence.setdefault("answer_layer", ev)
-    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)), option_params=params.get("options") or {})
+    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)))
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(task)
     write_task_outputs(result, out_dir)
     return TaskRun(task, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)
