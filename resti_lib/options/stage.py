@@ -219,31 +219,61 @@ class FieldModel:
     index: dict  # rid -> member position
 
     @classmethod
-    def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float
-            ) -> "FieldModel":
-        B = np.asarray(B, float).reshape(len(rids), -1)
-        H = np.asarray(H, float).reshape(B.shape)
+    def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
+            min_rows: int = 8, prior_sd=0.5, prior_center=None) -> "FieldModel":
+        """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
+        ``H`` and covariates ``W`` (n, k).
+
+        A group with fewer than ``min_rows`` answers cannot define a distribution alone: each field's
+        marginal then also holds pseudo-answers at the normal quantiles of a weak prior (the rows'
+        mean, or ``prior_center`` without rows, and the larger of their spread and ``prior_sd``),
+        as many as the rows are short of ``min_rows``."""
+        n = len(rids)
+        B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
+        H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
         d = B.shape[1]
-        fields = [Marginal.fit(B[:, j], H[:, j], k=knn) for j in range(d)]
-        covs, cs = [], np.zeros((len(rids), 0))
-        if W is not None and W.size and len(rids) >= 8:
-            W = np.asarray(W, float).reshape(len(rids), -1)
+        m = max(0, min_rows - n)
+        fields = []
+        for j in range(d):
+            bj, hj = B[:, j], H[:, j]
+            if m:
+                centre = float(bj.mean()) if n else float(np.atleast_1d(prior_center)[j])
+                sd = max(float(bj.std()) if n > 1 else 0.0, float(np.atleast_1d(prior_sd)[j % np.size(prior_sd)]))
+                pseudo = centre + sd * norm_quantiles(m)
+                bj = np.concatenate([bj, pseudo])
+                hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
+            fields.append(Marginal.fit(bj, hj, k=knn))
+        covs, cs = [], np.zeros((n, 0))
+        if W is not None and W.size and n >= min_rows:
+            W = np.asarray(W, float).reshape(n, -1)
             keep = [j for j in range(W.shape[1]) if np.nanstd(W[:, j]) > 1e-9]
             for j in keep:
-                m = Marginal.fit(W[:, j], 1e-6, k=knn)
-                covs.append(m)
+                covs.append(Marginal.fit(W[:, j], 1e-6, k=knn))
             if covs:
-                cs = np.column_stack([m.row_map(None).score(W[:, j]) for m, j in zip(covs, keep)])
-        us = np.column_stack([f.row_map(None).score(B[:, j]) for j, f in enumerate(fields)])
-        cop = Copula.fit(np.column_stack([us, cs]), d, shrink=shrink)
+                cs = np.column_stack([c.row_map(None).score(W[:, j]) for c, j in zip(covs, keep)])
+        if n:
+            us = np.column_stack([f.row_map(None).score(B[:, j]) for j, f in enumerate(fields)])
+            cop = Copula.fit(np.column_stack([us, cs]), d, shrink=shrink)
+        else:
+            cop = Copula(np.eye(d), d)
         return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)})
 
-    def prepare(self, rid: str) -> "RowDraw":
-        """The maps (without the row's own answer) and conditional model of one row, computed once."""
-        i = self.index[rid]
-        u_w = self.cov_scores[i] if self.cov_scores.shape[1] else None
+    def prepare(self, rid: str | None) -> "RowDraw":
+        """The maps (without the row's own answer) and conditional model of one row, computed once;
+        a row outside the model (``None`` or not a member) draws from the whole group."""
+        i = self.index.get(rid) if rid is not None else None
+        u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
+        if i is None and self.cov_scores.shape[1]:
+            u_w = np.zeros(self.cov_scores.shape[1])
         mu, L = self.copula.conditional(u_w)
         return RowDraw([f.row_map(i) for f in self.fields], mu, L)
+
+
+def norm_quantiles(m: int) -> np.ndarray:
+    """``m`` evenly spaced standard normal quantiles (deterministic pseudo-answers)."""
+    from scipy.stats import norm
+
+    return norm.ppf((np.arange(m) + 0.5) / m)
 
 
 @dataclass
@@ -453,9 +483,11 @@ class Stage:
             W = np.array([[_log_window(p.spec)] for p in moving])
             W = W if np.isfinite(W).all() else None
             fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=self.model["knn"],
-                                shrink=self.model["copula_shrink"])
-        else:
-            fm = None
+                                shrink=self.model["copula_shrink"], min_rows=int(self.model["min_group"]))
+        else:  # only exact zeros: distractors from a weak prior about twenty printed units
+            fm = FieldModel.fit([], None, None, None, knn=self.model["knn"], shrink=self.model["copula_shrink"],
+                                min_rows=int(self.model["min_group"]), prior_sd=1.0,
+                                prior_center=[math.log(20 * eps + eps)])
         carriers = _slot_rows(zeros, [p.rid for p in moving], self.model["zero_slot_ratio"], seed=self.seed,
                               group=g)
         for p in ps:
@@ -463,8 +495,6 @@ class Stage:
                 zero = V.format_scalar(0.0, p.spec.unit, p.spec.decimals)
                 p.fixed = (zero if p.spec.value.value > 0 else p.spec.detail,)
                 p.answer_is_fixed = p.spec.value.value <= 0
-        if zeros and not moving:
-            raise InputError(f"{g}: every answer is zero; no distractors can be drawn", field="Answer Detail")
         return GroupModel("scalar", fm, info)
 
     def _fit_angle(self, g: str, ps: list[RowPlan]) -> GroupModel:
@@ -474,7 +504,8 @@ class Stage:
                       for p, t in zip(ps, th)])
         W = np.array([[_log_window(p.spec)] for p in ps])
         W = W if np.isfinite(W).all() else None
-        fm = FieldModel.fit([p.rid for p in ps], b, H, W, knn=self.model["knn"], shrink=self.model["copula_shrink"])
+        fm = FieldModel.fit([p.rid for p in ps], b, H, W, knn=self.model["knn"], shrink=self.model["copula_shrink"],
+                            min_rows=int(self.model["min_group"]), prior_sd=0.3)
         return GroupModel("angle", fm)
 
     def _fit_trajectory(self, g: str, ps: list[RowPlan]) -> GroupModel:
@@ -492,16 +523,17 @@ class Stage:
             W = np.array([[_log_window(p.spec)] for p in moving])
             W = W if np.isfinite(W).all() else None
             fm = FieldModel.fit([p.rid for p in moving], np.log(x + 0.1) - ow, H, W, knn=self.model["knn"],
-                                shrink=self.model["copula_shrink"])
+                                shrink=self.model["copula_shrink"], min_rows=int(self.model["min_group"]))
+        else:  # only "no significant movement": single moves of a few metres per second of window
+            fm = FieldModel.fit([], None, None, None, knn=self.model["knn"], shrink=self.model["copula_shrink"],
+                                min_rows=int(self.model["min_group"]), prior_sd=1.0, prior_center=[math.log(3.0)])
         carriers = _slot_rows(none, [p.rid for p in moving], self.model["zero_slot_ratio"], seed=self.seed, group=g)
         donors = sorted(p.rid for p in moving)
         for p in ps:
             if p.rid in carriers:
                 p.fixed = (V.NO_MOVEMENT,)
                 p.answer_is_fixed = not p.spec.value.segments
-                if p.answer_is_fixed:
-                    if not donors:
-                        raise InputError(f"{g}: no moving trajectory to draw distractors from", field="Answer Detail")
+                if p.answer_is_fixed and donors:
                     p.donor = donors[int(row_rng(self.seed, p.rid, "donor").integers(len(donors)))]
         return GroupModel("trajectory", fm, info)
 
@@ -557,7 +589,8 @@ class Stage:
         members = [p.rid for p, k in zip(ps, ok) if k]
         if not members:
             raise InputError(f"{g}: no box in front of the camera", field="Answer Detail")
-        fm = FieldModel.fit(members, F[ok], Hh[ok], None, knn=self.model["knn"], shrink=self.model["copula_shrink"])
+        fm = FieldModel.fit(members, F[ok], Hh[ok], None, knn=self.model["knn"], shrink=self.model["copula_shrink"],
+                            min_rows=int(self.model["min_group"]), prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0])
         info["group_mode"] = mode
         # rows behind the camera: draw like the nearest member in the field model (rare; recorded)
         info["proxy"] = {p.rid: members[0] for p, k in zip(ps, ok) if not k}
@@ -596,7 +629,9 @@ class Stage:
             W.append([_log_window(p.spec)])
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
         fm = FieldModel.fit([p.rid for p in ps], F, Hh, W if np.isfinite(W).all() else None,
-                            knn=self.model["knn"], shrink=self.model["copula_shrink"])
+                            knn=self.model["knn"], shrink=self.model["copula_shrink"],
+                            min_rows=int(self.model["min_group"]),
+                            prior_sd=[0.5, 0.5, 0.2, 0.1, 0.1, 0.3] if not rate else [3.0, 1.0, 0.2, 0.1, 0.1, 0.3])
         return GroupModel("pose", fm, info)
 
     # -------------------------------------------------------------------- building
@@ -758,8 +793,8 @@ class Stage:
         n_draw = n_cont if p.answer_is_fixed else n_cont - 1
         K = 32
         if p.answer_is_fixed:
-            rid = p.rid if p.rid in gm.fields.index else next(iter(gm.fields.index))
-            off = gm.info["offset"].get(rid, 0.0) if rid == p.rid else self._mean_offset(gm, spec)
+            rid = p.rid if p.rid in gm.fields.index else None
+            off = gm.info["offset"][rid] if rid is not None else self._mean_offset(gm, spec)
             b = self._draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K)[:, :, 0]
         else:
             off = gm.info["offset"][p.rid]
@@ -850,11 +885,11 @@ class Stage:
         pars = {"split_sigma": 0.25, "turn_sigma_deg": 15.0}
         lo_b, hi_b = scalar_bounds(spec, self.params)
         if p.answer_is_fixed:
-            template = self.by_id[p.donor].spec.value
+            template = self.by_id[p.donor].spec.value if p.donor else V.Trajectory((("move", 1.0),), "")
             fmt = _traj_formatter(template, pars, rng, centred=False)
             off = _log_window(spec)
             off = off if math.isfinite(off) else 0.0
-            b = self._draw(gm, p.donor, [], s, rng, n=n_cont, prior=True)[:, 0]
+            b = self._draw(gm, p.donor if p.donor in gm.fields.index else None, [], s, rng, n=n_cont, prior=True)[:, 0]
             totals = np.exp(b + off) - 0.1
             strings = [fmt(float(t)) for t in totals]
             alls = strings + fixed
@@ -1098,5 +1133,6 @@ def build_options(records: list[dict], *, seed: int = 0, params: dict | None = N
     return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress, on_failure=on_failure)
 
 
-__all__ = ["OptionError", "Stage", "build_options", "constrained_schedule", "rotation_preimage", "box_yaw", "heading_deg",
+__all__ = ["OptionError", "Stage", "build_options", "constrained_schedule", "rotation_preimage", "box_yaw",
+           "heading_deg",
            "centre_fields", "centre_from_fields"]
