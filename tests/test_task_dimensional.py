@@ -9,7 +9,7 @@ import pytest
 
 from resti_lib import measure as M
 from resti_lib.sources.scannet import OrientedBox
-from resti_lib.tasks import referents as R
+from resti_lib import referents as R
 from tests import scalar_helpers as H
 from tests.test_sources_omni6d import SCENE as ROPE_SCENE
 from tests.test_sources_omni6d import write_rope
@@ -103,10 +103,10 @@ def test_waymo_noun_classes():
 
 def test_unsupported_questions_get_specific_reasons():
     from resti_lib.tasks.base import Outcome
-    from resti_lib.tasks.dimensional import _unsupported
+    from resti_lib.tasks.dimensional import unsupported
 
     def reasons(q):
-        o = _unsupported(Outcome(0, "k", TASK, "ScanNet", "v", 0, "retained"), {"Question": q})
+        o = unsupported(q).apply(Outcome(0, "k", TASK, "ScanNet", "v", 0, "retained"))
         return o.reasons, o.defects
 
     assert reasons("What is the diameter of the white bowl?") == (["undefined_dimension"], [])

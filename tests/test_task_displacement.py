@@ -6,6 +6,7 @@ import json
 
 import pytest
 
+from resti_lib import values as V
 from resti_lib.adjudicate import Rule
 from resti_lib.tasks import displacement as D
 from resti_lib.tasks.run import run_task
@@ -94,17 +95,19 @@ def test_ambiguous_subject_and_no_source(hand):
 
 def test_tie_break_by_legacy_value():
     rule = Rule(abs_tol=0.0, rel_tol=0.0)
-    k, ev = tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=True)
+    legacy = V.parse("4.00m")
+    k, ev = tie_break_by_legacy(["a", "b"], [3.0, 4.0], legacy, "m", rule, enabled=True)
     assert k == 1 and ev["n_agreeing"] == 1
-    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True)[0] == 0  # both print 4.00
-    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True, decimals=3)[0] is None
-    assert tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=False)[0] is None
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], legacy, "m", rule, enabled=True)[0] == 0  # both print 4.00
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], legacy, "m", rule, enabled=True, decimals=3)[0] is None
+    assert tie_break_by_legacy(["a", "b"], [3.0, 4.0], legacy, "m", rule, enabled=False)[0] is None
 
 
 def test_operator_of_how_far():
-    c = {"operator": "displacement"}
-    assert D.operator_of(c, "How far has the cyclist traveled from 1s to 4s?") == "path_length"
-    assert D.operator_of(c, "What is the displacement of the camera from 1s to 4s?") == "displacement"
+    # "how far ... traveled" reads literally as the path, with the statistic left open
+    assert D.operator_of("How far has the cyclist traveled from 1s to 4s?") == ("path_length", True)
+    assert D.operator_of("What is the displacement of the camera from 1s to 4s?") == ("displacement", False)
+    assert D.operator_of("What is the total distance traveled by the camera?") == ("path_length", False)
 
 
 # ----------------------------------------------------------------------------- the mini-world
@@ -148,11 +151,13 @@ def test_miniworld_no_significant_attack_and_valid_options(disp_run):
 def test_subject_phrases_of_the_scalar_questions():
     from types import SimpleNamespace
 
-    from resti_lib.tasks.scalar_audit import subject_phrase, the_phrase
+    from resti_lib.referents import noun_phrase
+    from resti_lib.tasks.scalar_audit import subject_phrase
 
-    assert the_phrase("A white utility truck.") == "the white utility truck"
-    assert the_phrase("The  Office chair") == "the office chair"
-    assert the_phrase("TV stand") == "the TV stand"
-    assert the_phrase(None) == "the object"
+    assert noun_phrase("A white utility truck.") == "the white utility truck"
+    assert noun_phrase("The  Office chair") == "the office chair"
+    assert noun_phrase("TV stand") == "the TV stand"
+    assert noun_phrase("A U-turn sign") == "the U-turn sign"
+    assert noun_phrase(None) == "the object"
     assert subject_phrase(SimpleNamespace(kind="camera"), "a red car") == "the camera"
     assert subject_phrase(SimpleNamespace(kind="object"), "a red car") == "the red car (its 3D box centre)"

@@ -9,6 +9,8 @@ import pytest
 
 from resti_lib import values as V
 from resti_lib.geometry.frames import make_T, yaw_matrix
+from resti_lib.measure.motion import sample_window
+from resti_lib.tasks.run import audit_row
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.tasks import pose as P
 from tests.task_checks import (
@@ -39,7 +41,7 @@ def test_pose_at_time_nearest_sample():
     T, ev = P.pose_at_time(tr, 5.02)
     assert ev["indices"] == [50] and ev["frame"] == [50]
     assert np.allclose(T[:3, 3], [5.0, 2.0, 1.0])
-    assert P.time_tolerance(tr) == pytest.approx(0.05)
+    assert sample_window(tr) == pytest.approx(0.05)
 
 
 def test_timestamp_search_finds_the_wrong_sample():
@@ -70,9 +72,10 @@ def test_resolve_premise_from_time_start_or_search():
 
 
 def test_trans_sigma_and_question():
-    assert P.trans_sigma("Waymo", 1.0, {}) == 2.0  # floor
-    assert P.trans_sigma("Waymo", 30.0, {}) == 15.0  # half the displacement
-    assert P.trans_sigma("ScanNet", 0.1, {"trans_sigma_floor": {"ScanNet": 0.4}}) == 0.4
+    p = P.Pose().settings({})
+    assert P.trans_sigma("Waymo", 1.0, p) == 2.0  # floor
+    assert P.trans_sigma("Waymo", 30.0, p) == 15.0  # half the displacement
+    assert P.trans_sigma("ScanNet", 0.1, P.Pose().settings({"trans_sigma_floor": {"ScanNet": 0.4}})) == 0.4
     q = P.question_text("Waymo", 3.0, 12.0, "{...}")
     for part in ("t=3 s", "t=12 s", "Waymo world coordinate frame", "camera-to-world", "OpenCV", "meters"):
         assert part in q
@@ -137,6 +140,8 @@ def test_notebook_parameters():
 
 
 class _Rope:
+    convention = ("stub",)
+
     def __init__(self, track):
         self.track, self.dir, self.obj_meta_path = track, "ROPE/000001", "Meta/real_obj_meta.json"
 
@@ -149,6 +154,7 @@ class _Rope:
 
 class _Ctx:
     video_map = None
+    omni6d_root = "stub"
 
     def __init__(self, rope):
         self._rope = rope
@@ -175,15 +181,15 @@ def test_omni_pose_relative_to_the_premise_camera():
     truth = invert_T(tr.T[20]) @ tr.T[50]  # camera at 5 s seen from the camera at 2 s
     r = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=5 s?",
              V.format_pose(truth), 2.0, 5.0)
-    o = P.audit_row(r, _Ctx(_Rope(tr)), {})
+    o = audit_row(TASK, r, _Ctx(_Rope(tr)), {})
     assert o.verdict == "retained" and not o.defects
     assert np.allclose(o.answer.value, truth)
     assert "t=2 s as the identity" in o.question and "t=5 s" in o.question
     wrong = _row(r["Question"], V.format_pose(tr.T[50]), 2.0, 5.0)  # legacy forgot to re-base
-    o2 = P.audit_row(wrong, _Ctx(_Rope(tr)), {})
+    o2 = audit_row(TASK, wrong, _Ctx(_Rope(tr)), {})
     assert o2.verdict == "corrected" and o2.defects == ["value_mismatch"]
     same = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=2 s?",
                 V.format_pose(np.eye(4)), 2.0, 2.0)
-    o3 = P.audit_row(same, _Ctx(_Rope(tr)), {})
+    o3 = audit_row(TASK, same, _Ctx(_Rope(tr)), {})
     assert o3.verdict == "excluded" and o3.reasons == ["premise_equals_target"]
     assert o3.defects == ["premise_equals_answer"] and o3.evidence["same_time"]
