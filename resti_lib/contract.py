@@ -24,6 +24,7 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 
 from . import values as V
+from .adjudicate import answer_layer_defects
 from .errors import InputError
 from .sources.mapping import map_video
 
@@ -169,18 +170,28 @@ def legacy_format(row: dict) -> dict:
     return out
 
 
-def legacy_distractors(row: dict, findings: Iterable[str] = ()) -> dict:
+def legacy_distractors(row: dict) -> dict:
     """D of a legacy row, read from its candidates: how many, whether the key points at the
-    detail, and the answer-layer findings (codes of :mod:`resti_lib.defects`) of the row."""
+    detail, the offsets of scalar and angle candidates from the detail, and the row's answer-layer
+    findings (the checks of :mod:`resti_lib.adjudicate`, codes of :mod:`resti_lib.defects`)."""
     cands = row.get("Candidates") if isinstance(row.get("Candidates"), dict) else {}
-    out = {"policy": "as printed in the legacy row", "n_candidates": len(cands),
-           "key_is_detail": cands.get(row.get("Answer")) == row.get("Answer Detail"),
-           "findings": sorted(set(findings))}
+    out: dict = {"policy": "as printed in the legacy row", "n_candidates": len(cands),
+                 "key_is_detail": cands.get(row.get("Answer")) == row.get("Answer Detail"),
+                 "findings": sorted(answer_layer_defects(row)[0])}
+    try:
+        d = V.parse(row.get("Answer Detail"))
+        vals = {k: V.parse(v) for k, v in cands.items()}
+    except InputError:
+        return out
+    if isinstance(d, V.Scalar) and all(isinstance(v, V.Scalar) and v.dimension == d.dimension for v in vals.values()):
+        off = [v.si - d.si for v in vals.values()]
+        if d.is_angle:
+            off = [float(V.wrap_degrees(x)) for x in off]
+        out["offsets_from_detail"] = sorted(round(float(x), 6) for x in off)
     return out
 
 
-def base_contract(row: dict, operator: str = "unknown", *, video_map: dict | None = None,
-                  findings: Iterable[str] = ()) -> tuple[Contract, str]:
+def base_contract(row: dict, operator: str = "unknown", *, video_map: dict | None = None) -> tuple[Contract, str]:
     """The parts every task reads the same way: source, sequence, camera, the times named in the
     text (else the row's ``time_start``/``time_end``), the unit tag, σ and D. Returns the contract
     and the whitespace-normalised question."""
@@ -196,7 +207,7 @@ def base_contract(row: dict, operator: str = "unknown", *, video_map: dict | Non
     c = Contract(task=row["Task"], source=row["Source"], video=row["Video"], sequence=sequence, camera=camera,
                  operator=operator, times=times or [t0, t1], time_stated=stated, unit=unit,
                  unit_stated=unit is not None, format=legacy_format(row),
-                 distractors=legacy_distractors(row, findings))
+                 distractors=legacy_distractors(row))
     return c, q
 
 

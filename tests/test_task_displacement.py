@@ -132,6 +132,48 @@ def test_miniworld_defects_verdicts_values(disp_run, man, miniworld):
     assert {o.source for o in disp_run.outcomes} == {"ScanNet", "Waymo", "Omni6DPose"}
 
 
+def test_how_far_is_read_per_source(disp_run, man):
+    """'How far has X traveled' is read as the legacy construction of each source built it: the
+    ScanNet rows as the displacement (the generator built them so), the Waymo rows as the path."""
+    how_far = [o for o in disp_run.outcomes if o.verdict != "excluded" and "construction_statistic" in o.evidence]
+    by_source = {o.source: o.evidence["construction_statistic"]["statistic"] for o in how_far}
+    assert by_source == {"ScanNet": "displacement", "Waymo": "path_length"}
+    for o in how_far:
+        m = {x["row"]: x for x in man}[o.row]
+        assert o.contract["operator"] == m["contract"]["operator"], o.row
+        if o.source == "ScanNet":
+            assert {"statistic_unnamed", "distance_traveled_is_displacement"} <= set(o.defects)
+            assert "displacement (straight-line" in o.question
+            hyp = o.evidence["hypotheses"]  # the legacy value is the displacement
+            assert hyp["matches"]["displacement"] == (o.verdict == "retained"), o.row
+        else:
+            assert "distance_traveled_is_displacement" not in o.defects
+    scannet = [o for o in how_far if o.source == "ScanNet"]
+    assert sum(o.verdict == "retained" for o in scannet) >= 5
+    # at least five ScanNet rows discriminate: the legacy value matches the displacement only
+    assert sum(o.evidence["hypotheses"]["matches"] == {"displacement": True, "path_length": False}
+               for o in scannet) >= 5
+
+
+def test_reading_per_source_by_hand():
+    from resti_lib.tasks.motion import reading_per_source, row_reading
+
+    names = {"displacement": "displacement", "path_length": "path"}
+    rows = [("ScanNet", {"displacement": True, "path_length": False})] * 3 + \
+        [("ScanNet", {"displacement": False, "path_length": False})] + \
+        [("Waymo", {"displacement": True, "path_length": True})] * 2 + \
+        [("Omni6DPose", {"displacement": True, "path_length": False})] * 2 + \
+        [("Omni6DPose", {"displacement": False, "path_length": True})]
+    g = reading_per_source(rows, names, "path_length", 0.25)
+    assert g["ScanNet"]["statistic"] == "displacement" and g["ScanNet"]["n_displacement_only"] == 3
+    assert g["ScanNet"]["n_neither"] == 1 and not g["ScanNet"]["mixed"]
+    assert g["Waymo"]["statistic"] == "path_length" and g["Waymo"]["decided_by"].startswith("undetermined")
+    assert g["Omni6DPose"]["mixed"]  # 1 of 3 deciding rows reads the other way: each row keeps its own
+    assert row_reading({"displacement": False, "path_length": True}, g["Omni6DPose"])[0] == "path_length"
+    assert row_reading({"displacement": False, "path_length": False}, g["ScanNet"])[:2] == ("displacement", True)
+    assert row_reading({"displacement": True, "path_length": True}, g["Waymo"])[:2] == ("path_length", False)
+
+
 def test_miniworld_exclusions_and_questions(disp_run):
     assert disp_run.result.excluded and H.exclusion_problems(disp_run) == []
     for e in disp_run.result.excluded:

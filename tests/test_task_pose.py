@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -42,6 +43,21 @@ def test_pose_at_time_nearest_sample():
     assert ev["indices"] == [50] and ev["frame"] == [50]
     assert np.allclose(T[:3, 3], [5.0, 2.0, 1.0])
     assert sample_window(tr) == pytest.approx(0.05)
+
+
+def test_rotation_angle_of_a_rounded_matrix_is_its_rounding_not_three_degrees():
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("z", 35.0, degrees=True).as_matrix()
+    printed = np.round(R, 2)  # [[0.82, -0.57], [0.57, 0.82]] in the x-y block: agrees with R to 0.005
+    # by hand: the nearest rotation of [[a, -b], [b, a]] turns by atan2(b, a); arccos((trace - 1) / 2)
+    # of the unprojected product would say 2.99 degrees
+    want = 35.0 - math.degrees(math.atan2(0.57, 0.82))
+    assert P.rotation_angle_deg(R, printed) == pytest.approx(want, abs=1e-9) and want < 0.2
+    assert P.rotation_angle_deg(np.eye(3), printed) == pytest.approx(math.degrees(math.atan2(0.57, 0.82)), abs=1e-9)
+    Rx = Rotation.from_euler("xyz", [20.0, -50.0, 110.0], degrees=True).as_matrix()
+    assert P.rotation_angle_deg(Rx, np.round(Rx, 2)) < 0.5
+    assert P.rotation_angle_deg(np.eye(3), Rx) == pytest.approx(np.degrees(Rotation.from_matrix(Rx).magnitude()))
 
 
 def test_timestamp_search_finds_the_wrong_sample():

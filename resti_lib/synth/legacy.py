@@ -762,7 +762,14 @@ class Builder:
         else:
             disp, path = self._camera_motion(slot, s, k0, k1)
             value = disp if op == "displacement" else path
-            if op == "displacement":
+            if op == "displacement" and slot.source == "ScanNet" and slot.variant != "zero":
+                # the ScanNet construction asked "how far has the camera traveled" and printed the
+                # endpoint displacement: the audit must find this reading per source, not assume a path
+                q = f"How far has the camera traveled from {_t(t0)}s to {_t(t1)}s?"
+                defects += ["statistic_unnamed", "distance_traveled_is_displacement"]
+                evidence = {"reading": "displacement (how far has the camera traveled, built as |p(t1) - p(t0)|)",
+                            "path_length_m": round(path, 6)}
+            elif op == "displacement":
                 q = f"What is the displacement of the camera from {_t(t0)}s to {_t(t1)}s?"
             else:
                 q = f"What is the total distance traveled by the camera from {_t(t0)}s to {_t(t1)}s?"

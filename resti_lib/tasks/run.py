@@ -27,7 +27,6 @@ import pandas as pd
 
 from .. import paths
 from ..adjudicate import answer_layer_defects, group_shortcuts, read_legacy
-from ..contract import legacy_distractors
 from ..errors import ContractError
 from ..io.benchmark import load_legacy
 from ..sources.context import SourceContext
@@ -99,9 +98,7 @@ def audit_rows(task: Task, rows: pd.DataFrame, ctx: SourceContext, params: dict)
     for r in rows.to_dict("records"):
         o = _outcome(task, r)
         outcomes.append(o)
-        findings = answer_layer_defects(r)[0]
         c = task.read_contract(r, ctx.video_map)
-        c.distractors = legacy_distractors(r, findings)
         o.contract = c.to_dict()
         o.defects += task.question_defects(c)
         legacy, problem = read_legacy(r, task.legacy_kind)
