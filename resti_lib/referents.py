@@ -424,11 +424,8 @@ def scannet_camera_at(scene, t: float, tol: float | None = None) -> tuple[np.nda
                       "pose_file": track.source}
 
 
-WAYMO_BOX_FRAME_TOL = 0.06  # seconds: a question time this close to a LiDAR frame reads that frame
-
-
-def waymo_boxes_at(seg, t: float, *, tol: float = WAYMO_BOX_FRAME_TOL) -> list[Instance]:
-    """LiDAR boxes of the frame nearest ``t`` (world frame)."""
+def waymo_boxes_at(seg, t: float, *, tol: float) -> list[Instance]:
+    """LiDAR boxes of the frame nearest ``t`` within ``tol`` seconds (world frame)."""
     out = []
     for b in seg.boxes_at(float(t), tol=tol):
         T = b["T_world_from_box"]
@@ -438,7 +435,7 @@ def waymo_boxes_at(seg, t: float, *, tol: float = WAYMO_BOX_FRAME_TOL) -> list[I
     return out
 
 
-def waymo_camera_at(seg, camera: int, t: float, *, tol: float = G.DEFAULT_TOL) -> tuple[np.ndarray, dict]:
+def waymo_camera_at(seg, camera: int, t: float, *, tol: float) -> tuple[np.ndarray, dict]:
     """``T_world_from_cam`` (OpenCV axes) of a Waymo camera at ``t`` and its pinhole intrinsics."""
     track = seg.camera_track(camera)
     T, ev = G.pose_at(track, float(t), "linear", tol)
@@ -546,22 +543,26 @@ class SceneView:
     seq : the opened sequence (``ScanNetScene``, ``WaymoSegment``, ``RopeScene``)
     camera : Waymo camera number (the video's camera)
     vis : ``{"near", "far", "min_fraction"}`` (:func:`visibility_rule`)
+    params : the operator settings ``waymo_frame_tol_s`` (a time this close to a Waymo box frame
+        reads that frame) and ``time_tol`` (defaults: ``params/measure.yaml``)
     """
 
     def __init__(self, source: str, seq, camera: int | None = None, *, vis: dict | None = None,
-                 synonyms: dict | None = None):
+                 synonyms: dict | None = None, params: dict | None = None):
         self.source = source
         self.seq = seq
         self.camera = camera
         self.near, self.far, self.min_fraction = visibility_rule(vis, source)
         self.synonyms = synonyms or {}
+        self.frame_tol = float(setting(params, "waymo_frame_tol_s"))
+        self.time_tol = float(setting(params, "time_tol"))
 
     @classmethod
     def open(cls, ctx, video: str, params: dict) -> SceneView:
         vs = ctx.locate(video)
         cam = vs.camera if vs.source == "Waymo" else None
         return cls(vs.source, ctx.sequence(video), cam, vis=params.get("visibility"),
-                   synonyms=params.get("synonyms"))
+                   synonyms=params.get("synonyms"), params=params)
 
     @property
     def name(self) -> str:
@@ -614,14 +615,14 @@ class SceneView:
         if self.source == "Waymo":
             # reading lidar_box here lets a damaged file stop the run (InputError), never one question
             near = self.seq.nearest_box_frame(float(t))
-            if near is not None and abs(near - float(t)) > WAYMO_BOX_FRAME_TOL:
-                far = InputError(f"no box frame within {WAYMO_BOX_FRAME_TOL} s of t={float(t)} "
+            if near is not None and abs(near - float(t)) > self.frame_tol:
+                far = InputError(f"no box frame within {self.frame_tol} s of t={float(t)} "
                                  f"(nearest {near:.6f} s)", file=self.seq.path("lidar_box"),
                                  field="key.frame_timestamp_micros")
                 raise ContractError(str(far))
-            boxes = waymo_boxes_at(self.seq, t)
+            boxes = waymo_boxes_at(self.seq, t, tol=self.frame_tol)
             t_frame = boxes[0].extra["t"] if boxes else float(t)
-            T, ev = waymo_camera_at(self.seq, self.camera, t_frame)
+            T, ev = waymo_camera_at(self.seq, self.camera, t_frame, tol=self.time_tol)
             return Snapshot(float(t), boxes, T, ev["intrinsics"], "Waymo segment world frame",
                             {"t_frame": t_frame, "camera": self.camera, "frame_timestamp_micros":
                              boxes[0].extra["micros"] if boxes else None,

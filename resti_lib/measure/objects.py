@@ -57,7 +57,7 @@ def scene_view(ctx: MeasureContext) -> SceneView:
     cam = None
     if ctx.source == "Waymo":
         cam = camera_number(ctx.camera) if ctx.camera not in (None, "") else None
-    return SceneView(ctx.source, ctx.scene, cam, vis=ctx.params.get("visibility"))
+    return SceneView(ctx.source, ctx.scene, cam, vis=ctx.params.get("visibility"), params=ctx.params)
 
 
 def instance_at(view: SceneView, inst_id, t: float | None) -> tuple[Instance, Snapshot | None]:

@@ -184,6 +184,7 @@ class Task:
     legacy_kind: ClassVar[type | tuple | None] = None
     operators: ClassVar[tuple[str, ...]] = ()
     missing_defects: ClassVar[dict] = {k: v for k, v in MISSING_DEFECTS.items() if k in ("unit", "subject")}
+    setting_overrides: ClassVar[tuple[str, ...]] = ()
 
     # -- parameters
     def settings(self, params: dict | None) -> dict:

@@ -393,6 +393,7 @@ class Grounding(Task):
     params_name = "grounding"
     legacy_kind = V.Box
     operators = ("box_in_camera",)
+    setting_overrides = ("visibility",)  # its own frustum test
     missing_defects = {"time": "unnamed_frame"}
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:

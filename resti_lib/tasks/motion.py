@@ -133,7 +133,7 @@ def _visibility_of_samples(view: SceneView, tr: PoseTrack) -> np.ndarray:
     k = intr["intrinsics"]
     intr = {"fx": k["f_u"], "fy": k["f_v"], "cx": k["c_u"], "cy": k["c_v"], "width": intr["width"],
             "height": intr["height"]}
-    Tc, _ = G.pose_at(cam, tr.times, "linear", G.DEFAULT_TOL, errors="nan")
+    Tc, _ = G.pose_at(cam, tr.times, "linear", view.time_tol, errors="nan")
     vis = np.zeros(len(tr.times), dtype=bool)
     for i in range(len(tr.times)):
         if not np.isfinite(Tc[i]).all():

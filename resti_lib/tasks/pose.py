@@ -240,6 +240,7 @@ class Pose(Task):
     params_name = "pose"
     legacy_kind = V.Pose
     operators = ("pose",)
+    setting_overrides = ("pose_rule",)  # the nearest sample, not interpolation
     missing_defects = {"time": "pose_time_omitted"}
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:

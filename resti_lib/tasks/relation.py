@@ -106,6 +106,7 @@ class Relation(Task):
     params_name = "relation"
     legacy_kind = V.Label
     operators = ("mounted_relation", "relative_position")
+    setting_overrides = ("visibility",)  # its own frustum test
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, q = base_contract(row, video_map=video_map)
