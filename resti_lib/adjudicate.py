@@ -33,8 +33,6 @@ from . import values as V
 from .defects import DEFECTS
 from .errors import InputError
 
-VERDICTS = ("retained", "corrected", "re-contracted", "excluded")
-
 
 @dataclass(frozen=True)
 class Rule:
@@ -221,9 +219,9 @@ def _key_detail(o: LegacyOptions) -> dict | None:
     """The keyed candidate disagrees with the Answer Detail (text differs and values disagree)."""
     keyed = o.candidates.get(o.row.get("Answer"))
     kv = o.parsed.get(o.row.get("Answer"))
-    if keyed is not None and keyed != o.row.get("Answer Detail"):
-        if kv is None or o.detail is None or not V.agree(kv, o.detail):
-            return {"keyed": keyed, "detail": o.row.get("Answer Detail")}
+    if keyed is not None and keyed != o.row.get("Answer Detail") and (
+            kv is None or o.detail is None or not V.agree(kv, o.detail)):
+        return {"keyed": keyed, "detail": o.row.get("Answer Detail")}
     return None
 
 

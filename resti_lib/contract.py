@@ -30,19 +30,19 @@ from .sources.mapping import map_video
 
 NUM = r"[-+]?\d+(?:\.\d+)?"
 _T_RANGE = [
-    re.compile(rf"from\s+(?:t\s*=\s*)?({NUM})\s*s(?:econds?)?\s+to\s+(?:t\s*=\s*)?({NUM})\s*s", re.I),
+    re.compile(rf"from\s+(?:t\s*=\s*)?({NUM})\s*s(?:econds?)?\s+to\s+(?:t\s*=\s*)?({NUM})\s*s", re.IGNORECASE),
     re.compile(rf"between\s+(?:t\s*=\s*|source pose timestamps\s+)?({NUM})\s*(?:s\b|seconds?\b)?\s*and\s+"
-               rf"(?:t\s*=\s*)?({NUM})\s*s", re.I),
+               rf"(?:t\s*=\s*)?({NUM})\s*s", re.IGNORECASE),
 ]
 _T_POINT = [
-    re.compile(rf"\bat\s+t\s*=\s*({NUM})\s*s\b", re.I),
-    re.compile(rf"\bat\s+({NUM})\s*s(?:econds?)?\b", re.I),
-    re.compile(r"\bsource frame\s+(\d+)\s*\((\d+(?:\.\d+)?)\s*FPS", re.I),
+    re.compile(rf"\bat\s+t\s*=\s*({NUM})\s*s\b", re.IGNORECASE),
+    re.compile(rf"\bat\s+({NUM})\s*s(?:econds?)?\b", re.IGNORECASE),
+    re.compile(r"\bsource frame\s+(\d+)\s*\((\d+(?:\.\d+)?)\s*FPS", re.IGNORECASE),
 ]
-_UNIT_TAG = re.compile(r"\(unit:\s*([^)]+)\)", re.I)
+_UNIT_TAG = re.compile(r"\(unit:\s*([^)]+)\)", re.IGNORECASE)
 _JSON_OBJ = re.compile(r"\{[^{}]*\}")
 _PROMPT_OBJECT = re.compile(r"^(?:Target object description|Object description|Object|Objects):\s*(.+?)\.?(?:;|$)",
-                            re.I)
+                            re.IGNORECASE)
 _PAIR = (r"distance between (?:the |a |an )?(.+?) and (?:the |a |an )?(.+?)\?",
          r"position of (?:the |a |an )?(.+?) relative to (?:the |a |an )?(.+?)(?: at |\?)",
          r"relative to (?:the |a |an )?(.+?), is (?:the |a |an )?(.+?) to the")
@@ -87,9 +87,6 @@ class Contract:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), sort_keys=True, default=float)
 
 
 def find_times(text: str) -> tuple[list[float], bool]:
@@ -136,7 +133,7 @@ def description(row: dict, question: str, patterns: Iterable[str] = ()) -> str |
     if m:
         return m.group(1).strip().rstrip(".")
     for rx in patterns:
-        m = re.search(rx, question, re.I)
+        m = re.search(rx, question, re.IGNORECASE)
         if m:
             return m.group(1).strip()
     return None
@@ -145,7 +142,7 @@ def description(row: dict, question: str, patterns: Iterable[str] = ()) -> str |
 def object_pair(question: str) -> tuple[str, str] | None:
     """The two descriptions of a pair question ("distance between A and B", "A relative to B")."""
     for rx in _PAIR:
-        m = re.search(rx, question, re.I)
+        m = re.search(rx, question, re.IGNORECASE)
         if m:
             return m.group(1).strip(), m.group(2).strip()
     return None

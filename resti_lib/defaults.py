@@ -9,7 +9,7 @@ operator, shared by ``resti measure`` and the task notebooks).
 from __future__ import annotations
 
 import copy
-from functools import lru_cache
+from functools import cache
 from typing import Any
 
 import yaml
@@ -20,7 +20,7 @@ from .errors import InputError
 __all__ = ["load", "merged", "setting"]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _read(name: str) -> dict:
     path = paths.PARAMS / f"{name}.yaml"
     try:

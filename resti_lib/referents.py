@@ -491,10 +491,6 @@ def in_camera(box_world: OrientedBox, T_world_from_cam: np.ndarray) -> OrientedB
     return box_world.transformed(invert_T(np.asarray(T_world_from_cam, float)))
 
 
-def transform_point(T: np.ndarray, p) -> np.ndarray:
-    return apply_T(np.asarray(T, float), np.asarray(p, float))
-
-
 def box_from(center, R, lwh) -> OrientedBox:
     """An :class:`OrientedBox` from arrays."""
     return OrientedBox(np.asarray(center, float), np.asarray(R, float), np.asarray(lwh, float))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from resti_lib import measure as M
-from resti_lib.sources.scannet import OrientedBox
 from resti_lib import referents as R
+from resti_lib.sources.scannet import OrientedBox
 from tests import scalar_helpers as H
 from tests.test_sources_omni6d import SCENE as ROPE_SCENE
 from tests.test_sources_omni6d import write_rope

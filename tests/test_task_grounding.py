@@ -12,16 +12,16 @@ import pytest
 import trimesh
 
 from resti_lib import values as V
-from resti_lib.measure.boxes import CameraBox, scannet_box, validate_box, waymo_box
-from resti_lib.referents import resolve
-from resti_lib.tasks.run import audit_row
-from resti_lib.tasks import read_contract
 from resti_lib.errors import InputError
 from resti_lib.measure import evaluate_contract
+from resti_lib.measure.boxes import scannet_box, validate_box, waymo_box
 from resti_lib.options.attacks import attack_table
+from resti_lib.referents import resolve
 from resti_lib.sources.scannet import ScanNetScene
 from resti_lib.sources.waymo import WaymoSegment
 from resti_lib.tasks import grounding as G
+from resti_lib.tasks import read_contract
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import check_defects, check_values, run_on_miniworld
 
 TASK = "3D Video Grounding"

@@ -95,7 +95,7 @@ def test_the_toy_task_is_registered():
 
 
 def test_toy_task_runs_the_shared_path(toy):
-    run, params = toy
+    run, _ = toy
     o0, o1, o2 = run.outcomes
     # by hand: P0 = [1, -3, 0.5] -> sqrt(10.25) = 3.2016 m (printed 3.20: retained); P1 = [1, -2, 0.5] at
     # 1/30 s -> sqrt(5.25) = 2.2913 m (the legacy 3.20 is frame 0's value: corrected); frame 2 is invalid

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from resti_lib.tasks import read_contract
 from resti_lib.geometry import trajectory as GT
 from resti_lib.geometry.frames import opencv_cam_pose_to_waymo
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.options.attacks import attack_table
 from resti_lib.tasks import orientation as O
-from tests.task_checks import check_defects, check_values, miniworld_params, run_on_miniworld
+from resti_lib.tasks import read_contract
+from tests.task_checks import check_defects, check_values, run_on_miniworld
 
 TASK = "Ego-Centric Orientation"
 

@@ -10,10 +10,10 @@ import pytest
 
 from resti_lib import values as V
 from resti_lib.geometry.frames import make_T, yaw_matrix
-from resti_lib.measure.motion import sample_window
-from resti_lib.tasks.run import audit_row
 from resti_lib.geometry.trajectory import PoseTrack
+from resti_lib.measure.motion import sample_window
 from resti_lib.tasks import pose as P
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
     check_attacks,
     check_defects,

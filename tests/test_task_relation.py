@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from resti_lib.geometry.frames import make_T, yaw_matrix
-from resti_lib.tasks.run import audit_row
 from resti_lib.rng import row_rng
 from resti_lib.tasks import relation as RE
 from resti_lib.tasks.base import AnswerSpec, build_options
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
     check_attacks,
     check_defects,

@@ -36,7 +36,15 @@ import numpy as np
 from ..errors import ContractError, InputError
 from . import boxes, motion, objects, relations, trajectory  # noqa: F401 -- they register the operators
 from .cli import measure_main
-from .registry import OPERATORS, EntityTrack, MeasureContext, OperatorSpec, convert_unit, register_operator, setting
+from .registry import (
+    OPERATORS,
+    EntityTrack,
+    MeasureContext,
+    OperatorSpec,
+    convert_unit,
+    register_operator,
+    setting,
+)
 
 __all__ = [
     "OPERATORS",

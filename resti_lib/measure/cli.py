@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
+
 def _load_params(path: str | None) -> dict:
     if not path:
         return {}

@@ -390,10 +390,5 @@ def outcome_table(outcomes: list[Outcome]) -> pd.DataFrame:
                          for o in outcomes])
 
 
-def rule_dict(rule: Rule) -> dict:
-    """A comparison rule as the option spec records it."""
-    return rule.to_dict()
-
-
 __all__ = ["AnswerSpec", "Case", "Exclude", "Outcome", "Task", "TaskResult", "asdict", "build_options", "finalize",
-           "option_spec", "outcome_table", "resti_id", "rule_dict", "slug", "write_task_outputs"]
+           "option_spec", "outcome_table", "resti_id", "slug", "write_task_outputs"]

@@ -30,6 +30,7 @@ Every value is the measure operator of the same name (:mod:`resti_lib.measure.ob
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pandas as pd
 
@@ -37,12 +38,19 @@ from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
 from ..contract import Contract, base_contract, description, instant, object_pair
 from ..errors import ContractError
-from ..measure.objects import CHAIN, DIMS
+from ..measure.objects import CHAIN
 from ..referents import Instance, Referent, SceneView, Snapshot, noun_phrase, read_phrase
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Task
-from .scalar_audit import rule_for, scatter_by_source, set_rule, tie_break_by_legacy, tie_break_enabled, unit_for, \
-    value_table
+from .scalar_audit import (
+    rule_for,
+    scatter_by_source,
+    set_rule,
+    tie_break_by_legacy,
+    tie_break_enabled,
+    unit_for,
+    value_table,
+)
 
 TASK = "Dimensional Measurement"
 

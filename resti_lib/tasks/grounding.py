@@ -47,6 +47,7 @@ import re
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -57,8 +58,16 @@ from ..contract import Contract, base_contract, description, instant
 from ..errors import ContractError, InputError
 from ..figures import save_figure
 from ..geometry.frames import R_WAYMO_FROM_CV, T_WAYMO_CAM_FROM_CV_CAM
-from ..measure.boxes import CameraBox, camera_box, inv, rope_frame, scannet_ann_box, scannet_frame, validate_box, \
-    waymo_frame
+from ..measure.boxes import (
+    CameraBox,
+    camera_box,
+    inv,
+    rope_frame,
+    scannet_ann_box,
+    scannet_frame,
+    validate_box,
+    waymo_frame,
+)
 from ..referents import box_visibility, noun_phrase, resolve, visibility_rule
 from ..sources.context import SourceContext, derived
 from ..sources.scannet import ScanNetScene, upright_oriented_box
@@ -394,7 +403,7 @@ class Grounding(Task):
     legacy_kind = V.Box
     operators = ("box_in_camera",)
     setting_overrides = ("visibility",)  # its own frustum test
-    missing_defects = {"time": "unnamed_frame"}
+    missing_defects: ClassVar[dict] = {"time": "unnamed_frame"}
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, q = base_contract(row, "box_in_camera", video_map=video_map)
@@ -500,7 +509,7 @@ class Grounding(Task):
                                  options={"center_sigma": center_sigma(c.source, box.lwh, p)})
 
     def diagnose(self, case: Case) -> None:
-        p, legacy, s, o = case.params, case.legacy, case.state, case.outcome
+        p, legacy, s = case.params, case.legacy, case.state
         box, target, diag = s["box"], s["target"], s["diag"]
         rule = Rule(abs_tol=float(p["centre_abs_tol_m"]))
         case.rule = {**rule.to_dict(), "per_axis_printed_unit": True}

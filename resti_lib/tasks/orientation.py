@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
@@ -40,7 +40,7 @@ from ..geometry.trajectory import PoseTrack
 from ..rng import row_rng
 from ..sources.context import SourceContext
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Ego-Centric Orientation"
 
@@ -197,7 +197,7 @@ class Orientation(Task):
     params_name = "orientation"
     legacy_kind = V.Scalar
     operators = ("heading_change",)
-    missing_defects: dict = {}
+    missing_defects: ClassVar[dict] = {}
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, q = base_contract(row, "heading_change", video_map=video_map)

@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -51,7 +52,7 @@ from ..geometry.frames import invert_T
 from ..geometry.trajectory import PoseTrack
 from ..measure.motion import sample_window
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Pose Estimation"
 
@@ -241,7 +242,7 @@ class Pose(Task):
     legacy_kind = V.Pose
     operators = ("pose",)
     setting_overrides = ("pose_rule",)  # the nearest sample, not interpolation
-    missing_defects = {"time": "pose_time_omitted"}
+    missing_defects: ClassVar[dict] = {"time": "pose_time_omitted"}
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, q = base_contract(row, "pose", video_map=video_map)

@@ -44,10 +44,17 @@ from ..contract import Contract, base_contract, instant, object_pair
 from ..errors import ContractError
 from ..figures import save_figure
 from ..measure.relations import mount_relation, relative_position
-from ..referents import box_visibility, frame_of_time, noun_phrase, omni_boxes_at, omni_instances, resolve, \
-    visibility_rule
+from ..referents import (
+    box_visibility,
+    frame_of_time,
+    noun_phrase,
+    omni_boxes_at,
+    omni_instances,
+    resolve,
+    visibility_rule,
+)
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Spatial Relation"
 MOUNT_LABELS = ["Front", "Front-Left", "Front-Right", "Left", "Right"]

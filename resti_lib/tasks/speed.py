@@ -33,6 +33,8 @@ The per-source decision is :func:`resti_lib.tasks.motion.reading_per_source`, sh
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 

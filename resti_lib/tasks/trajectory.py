@@ -29,7 +29,7 @@ from ..figures import save_figure
 from ..geometry.trajectory import PoseTrack
 from ..measure.trajectory import describe_motion, track_interval
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Trajectory Description"
 
