@@ -111,6 +111,7 @@ class Trajectory(Task):
         c.params.update({"distances": "path length between turn split samples",
                          "turns": "net horizontal heading change (left positive)"})
         case.outcome.evidence["operator"] = ev
+        case.outcome.evidence["path"] = path_evidence(track, t0, t1u)
         case.outcome.prompt = ""
         case.outcome.time_start, case.outcome.time_end = t0, t1u
         case.value = segs
@@ -160,27 +161,35 @@ def diagnosis_table(outcomes: list[Outcome]) -> pd.DataFrame:
     return pd.DataFrame(recs)
 
 
-def plot_path(track: PoseTrack, evidence: dict, path: str | Path, *, title: str = "") -> Path:
-    """Top-down camera path (world x-y) with the turn windows and the split samples of one row."""
+def path_evidence(track: PoseTrack, t0: float, t1: float) -> dict:
+    """The camera path of a row for its figure: sample times and world x-y positions relative to the
+    first sample in ``[t0, t1]`` (valid samples only, centimetre precision)."""
+    sel = (track.times >= t0 - 1e-6) & (track.times <= t1 + 1e-6) & track.valid
+    p = track.positions[sel]
+    xy = np.round(p[:, :2] - p[0, :2], 2) if len(p) else np.zeros((0, 2))
+    return {"t": [round(float(t), 6) for t in track.times[sel]], "xy": xy.tolist()}
+
+
+def plot_path(evidence: dict, path: str | Path, *, title: str = "") -> Path:
+    """Top-down camera path (world x-y) with the turn windows and the split samples of one row, from
+    the row's evidence (``operator`` and ``path``: no source is reopened)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t0 = float(evidence.get("t0", track.times[0]))
-    t1 = float(evidence.get("t1_used", track.times[-1]))
-    sel = (track.times >= t0 - 1e-6) & (track.times <= t1 + 1e-6) & track.valid
-    p = track.positions[sel]
-    tt = track.times[sel]
+    op = evidence["operator"]
+    tt = np.asarray(evidence["path"]["t"], float)
+    p = np.asarray(evidence["path"]["xy"], float).reshape(-1, 2)
     fig, ax = plt.subplots(figsize=(5.0, 4.2))
-    ax.plot(p[:, 0] - p[0, 0], p[:, 1] - p[0, 1], color="#2c7fb8", lw=1.5, label="move")
-    for w in evidence.get("turn_windows", []):
-        m = (tt >= w["window"][0] - 1e-9) & (tt <= w["window"][1] + 1e-9)
-        ax.plot(p[m, 0] - p[0, 0], p[m, 1] - p[0, 1], color="#d95f0e", lw=3.0)
+    ax.plot(p[:, 0], p[:, 1], color="#2c7fb8", lw=1.5, label="move")
+    for w in op.get("turn_windows", []):
+        m = (tt >= w["window"][0] - 1e-6) & (tt <= w["window"][1] + 1e-6)
+        ax.plot(p[m, 0], p[m, 1], color="#d95f0e", lw=3.0)
         k = int(np.argmin(np.abs(tt - w["split_time"])))
-        ax.scatter([p[k, 0] - p[0, 0]], [p[k, 1] - p[0, 1]], color="k", s=14, zorder=3)
+        ax.scatter([p[k, 0]], [p[k, 1]], color="k", s=14, zorder=3)
         d = w["heading_change_deg"]
-        ax.annotate(f"{'left' if d > 0 else 'right'} {abs(d):.0f}°", (p[k, 0] - p[0, 0], p[k, 1] - p[0, 1]),
+        ax.annotate(f"{'left' if d > 0 else 'right'} {abs(d):.0f}°", (p[k, 0], p[k, 1]),
                     textcoords="offset points", xytext=(6, 6), fontsize=7)
     ax.scatter([0.0], [0.0], marker="o", color="#2c7fb8", s=20, zorder=3)
     ax.plot([], [], color="#d95f0e", lw=3.0, label="turn window")
@@ -188,22 +197,19 @@ def plot_path(track: PoseTrack, evidence: dict, path: str | Path, *, title: str 
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("world x − x(t0) [m]")
     ax.set_ylabel("world y − y(t0) [m]")
-    segs = [tuple(s) for s in evidence.get("segments", [])]
+    segs = [tuple(s) for s in op.get("segments", [])]
     ax.set_title(title or V.format_trajectory(segs), fontsize=7)
     ax.legend(frameon=False, fontsize=7, loc="best")
     fig.tight_layout()
     return save_figure(fig, path)
 
 
-def plot_paths(outcomes: list[Outcome], params: dict, fig_dir: str | Path, *, prefix: str = "07_trajectory_path",
+def plot_paths(outcomes: list[Outcome], fig_dir: str | Path, *, prefix: str = "07_trajectory_path",
                max_plots: int = 4) -> list[Path]:
     """Top-down path figures (:func:`plot_path`) for up to ``max_plots`` distinct videos, those with
     the most turns first; files ``<fig_dir>/<prefix>_<k>.png``."""
-    from ..sources.context import SourceContext
-
-    ctx = SourceContext.from_params(params)
     seen, chosen = set(), []
-    ranked = sorted((o for o in outcomes if o.verdict != "excluded" and "operator" in o.evidence),
+    ranked = sorted((o for o in outcomes if o.verdict != "excluded" and "path" in o.evidence),
                     key=lambda o: (-len(o.evidence["operator"].get("turn_windows", [])), o.row))
     for o in ranked:
         if o.video not in seen:
@@ -213,10 +219,8 @@ def plot_paths(outcomes: list[Outcome], params: dict, fig_dir: str | Path, *, pr
             break
     out = []
     for k, o in enumerate(chosen):
-        vs = ctx.locate(o.video)
-        track = ctx.waymo(vs.sequence).camera_track(vs.camera)
         segs = [tuple(s) for s in o.evidence["operator"].get("segments", [])]
-        out.append(plot_path(track, o.evidence["operator"], Path(fig_dir) / f"{prefix}_{k}.png",
+        out.append(plot_path(o.evidence, Path(fig_dir) / f"{prefix}_{k}.png",
                              title=f"{o.video}: {V.format_trajectory(segs)}"))
     return out
 
@@ -228,6 +232,7 @@ __all__ = [
     "describe_motion",
     "diagnosis_table",
     "on_grid",
+    "path_evidence",
     "plot_path",
     "plot_paths",
     "question_text",
