@@ -273,7 +273,7 @@ def test_resolve_waymo_nouns():
 
 
 def _inst(i, hyp, shifted=None):
-    return G.Instance(str(i), "chair", None, np.zeros(3), True, hypotheses={k: np.asarray(v, float) for k, v in hyp.items()},
+    return G.Candidate(str(i), "chair", None, np.zeros(3), True, hypotheses={k: np.asarray(v, float) for k, v in hyp.items()},
                       shifted=shifted or {})
 
 

@@ -90,8 +90,9 @@ TYPE_WORDS = ("vehicle", "pedestrian", "cyclist", "sign")
 
 
 @dataclass
-class Instance:
-    """One source instance as the diagnosis sees it at the asked frame."""
+class Candidate:
+    """One source instance as the diagnosis sees it at the asked frame: its box (the ``box_in_camera``
+    value), whether it is in view, and the legacy hypotheses evaluated on it."""
 
     id: str
     label: str
@@ -172,7 +173,7 @@ def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
                     "camera_atan2_R10_R00_alignment_omitted": V.box_heading(Pi[:3, :3] @ T_ann_box[:3, :3]),
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
         ok, z = _seen(box, intr, "ScanNet", p)
-        insts.append(Instance(str(oid), inst.label, box, np.asarray(native[oid], float), ok, z, hyp, shifted,
+        insts.append(Candidate(str(oid), inst.label, box, np.asarray(native[oid], float), ok, z, hyp, shifted,
                               headings))
     src0 = next(iter(scene.instances.values())).source if scene.instances else {}
     files = [str(scene.meta_path), track.source] + [src0.get(k) for k in ("aggregation", "segs", "ply") if src0]
@@ -211,7 +212,7 @@ def waymo_view(seg: WaymoSegment, camera: int, t: float, p: dict) -> FrameView:
                     "world_yaw": math.degrees(b["heading_world"]),
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
         ok, z = _seen(box, intr, "Waymo", p)
-        insts.append(Instance(str(b["id"]), str(b["type"]), box, np.asarray(b["center_world"], float), ok, z,
+        insts.append(Candidate(str(b["id"]), str(b["type"]), box, np.asarray(b["center_world"], float), ok, z,
                               hyp, shifted, headings))
     files = [str(seg.path(c)) for c in ("vehicle_pose", "camera_calibration", "lidar_box")]
     return FrameView("Waymo", seg.segment, int(camera), tk, {"frame_index": k, "micros": micros, "t": tk,
@@ -255,7 +256,7 @@ def rope_view(rope, t: float, p: dict) -> FrameView:
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
         ok, z = _seen(box, intr, "Omni6DPose", p)
         ok = ok and bool(b["is_valid"])
-        insts.append(Instance(oid, str(b["class_name"]), box, wc, ok, z, hyp, shifted, headings))
+        insts.append(Candidate(oid, str(b["class_name"]), box, wc, ok, z, hyp, shifted, headings))
     labels = _rope_classes(rope)
     return FrameView("Omni6DPose", rope.scene, None, tf, {"frame": f, "t": tf, "fps": rope.fps}, T_world_cam, intr,
                      insts, [str(rope.meta_path(f)), str(rope.obj_meta_path)],
@@ -337,7 +338,7 @@ def score_hypotheses(legacy_center: np.ndarray, pool: list, tol: float) -> dict:
             "tolerance_m": tol}
 
 
-def _legacy_pick(visible: list, legacy: V.Box | None, tol: float) -> tuple[Instance, str] | None:
+def _legacy_pick(visible: list, legacy: V.Box | None, tol: float) -> tuple[Candidate, str] | None:
     """The one visible candidate whose legacy centre some hypothesis reproduces, or None."""
     if legacy is None:
         return None
