@@ -579,31 +579,34 @@ def _rope_classes(rope) -> list[str]:
 
 
 def rope_view(rope, t: float, p: dict) -> FrameView:
-    """ROPE at ``t``: every annotated object of the frame with the correct box and hypotheses."""
+    """ROPE at ``t``: every annotated object of the frame with the correct box and hypotheses.
+
+    The sequence world is the camera at the first frame (the camera track recovered from the static
+    objects; real ROPE frames store no scene frame), so an object's world centre is its camera-frame
+    centre moved through the camera pose of the frame.
+    """
     f, tf = rope_frame(rope, t, tol=float(p["frame_time_tol_s"]))
-    track = rope.camera_track(rebase=False)
+    track = rope.camera_track(rebase=True)
     frames = list(track.meta["frames"])
     k = frames.index(f)
+    if not track.valid[k]:
+        raise ContractError(f"ROPE {rope.scene}: no camera pose at frame {f} (no static object annotated)")
     T_world_cam = track.T[k]
-    T0 = track.T[0]
     intr = rope.intrinsics(f)
     vis = p["visibility"]["Omni6DPose"]
     Wn = int(p["time_shift_frames"].get("Omni6DPose", 0))
-    shifts = {d: _inv(track.T[k + d]) for d in range(-Wn, Wn + 1) if d != 0 and 0 <= k + d < len(frames)}
-    world = {}
-    for o, _, Tw in rope._objects(f, world=True):
-        world[str(o.meta.oid)] = Tw[:3, 3].copy()
+    shifts = {d: _inv(track.T[k + d]) for d in range(-Wn, Wn + 1)
+              if d != 0 and 0 <= k + d < len(frames) and track.valid[k + d]}
     insts = []
     for b in rope.object_boxes(f):
         oid = str(b["oid"])
         box = CameraBox(np.asarray(b["center"], float), np.asarray(b["lwh"], float), np.asarray(b["R"], float),
                         "T_cam<-obj (ROPE pose, verified convention, OpenCV axes)", {"frame": f, "t": tf})
-        wc = world.get(oid, T_world_cam[:3, :3] @ box.center + T_world_cam[:3, 3])
+        wc = T_world_cam[:3, :3] @ box.center + T_world_cam[:3, 3]
         hyp = {
             "correct": box.center,
             "opengl_axes": box.center * np.array([1.0, -1.0, -1.0]),
-            "scene_frame": wc.copy(),
-            "first_camera_frame": (_inv(T0) @ np.append(wc, 1.0))[:3],
+            "first_camera_frame": wc.copy(),
         }
         shifted = {"correct": {d: (S @ np.append(wc, 1.0))[:3] for d, S in shifts.items()}}
         headings = {"camera_atan2_R10_R00": box.heading,
@@ -803,6 +806,8 @@ def audit_row(row: dict, ctx: SourceContext, p: dict) -> Outcome:
               "candidate_depths_m": {i.id: round(i.depth, 4) for i in cands[:20]}}
     o.evidence["referent"] = ref_ev
     o.evidence["frame"] = dict(view.frame)
+    if c.source == "Omni6DPose":  # the world of the centres: the camera track from the static objects
+        o.evidence["camera_track"] = ctx.rope(c.sequence).camera_evidence()
     tol = legacy_tolerance(legacy, p)
     pool = visible or cands or view.instances
     diag = score_hypotheses(np.array(legacy.center), pool, tol) if legacy is not None else None
@@ -1047,7 +1052,8 @@ def figure_topdown(run, params: dict, path: str | Path, *, row: int | None = Non
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("world X (m)")
     ax.set_ylabel("world Y (m)")
-    world = {"ScanNet": "raw scan frame", "Waymo": "segment world frame", "Omni6DPose": "ROPE scene frame"}[o.source]
+    world = {"ScanNet": "raw scan frame", "Waymo": "segment world frame",
+             "Omni6DPose": "first-frame camera frame"}[o.source]
     ax.set_title(f"{o.video} at {o.time_start:.3f} s, {world}; winner: {d.get('winner')}", fontsize=8, loc="left")
     ax.legend(fontsize=7, loc="best", frameon=False)
     return save_figure(fig, path, dpi=120)

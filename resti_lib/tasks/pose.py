@@ -69,7 +69,8 @@ WORLD = {
 CHAIN = {
     "ScanNet": "P(t) = T_raw<-cam(t) (.sens camera_to_world, OpenCV axes)",
     "Waymo": "P(t) = world_from_vehicle(t) @ extrinsic(camera) @ T_waymo_cam<-cv_cam",
-    "Omni6DPose": "P(t) = T_scene<-cam(t0)^-1 @ T_scene<-cam(t) (stored convention verified, OpenCV axes)",
+    "Omni6DPose": "P(t) = T_c0<-cam(t0)^-1 @ T_c0<-cam(t), T_c0<-cam(t) = T_c0<-obj T_cam(t)<-obj^-1 over the "
+                  "static objects (OpenCV axes)",
 }
 AXES = "OpenCV camera axes (+X right, +Y down, +Z forward)"
 
@@ -258,6 +259,8 @@ def audit_row(r: dict, ctx, params: dict) -> Outcome:
     track, up, files = _track(ctx, vs, params)
     o.source_files = files
     o.transform_chain = CHAIN[src]
+    if src == "Omni6DPose":  # where the camera motion comes from (static objects, left-out movers)
+        o.evidence["camera_track"] = track.meta.get("evidence")
     if "time" in c.missing:
         o.defects.append("pose_time_omitted")
     o.evidence["legacy_missing"] = list(c.missing)
