@@ -16,6 +16,16 @@ Contract per operator (the rewritten question states each part):
     Minimum Euclidean distance between the two solid oriented boxes
     (:func:`resti_lib.tasks.referents.box_box_distance`; 0 when they touch or overlap).
 
+ScanNet box convention (diagnosed per task, as Speed diagnoses its statistic): every ScanNet value
+is computed under the tight gravity-upright box (footprint = minimum-area rectangle; length and
+width its longer and shorter horizontal sides) and under the axis-aligned box in the annotation
+frame (length / width = extents along the annotation frame's x / y axes, the box of 3D grounding
+datasets). The legacy convention is the one matched by the majority of the rows that match exactly
+one of the two; a row whose legacy value agrees only under it is *re-contracted* (the clarified
+question states the tight box), one that agrees only under the other convention is a chance
+agreement (*corrected*, noted). With no majority each row keeps its own match. The counts and the
+decision are in every ScanNet row's evidence (``box_convention``).
+
 Referents: the description's head noun must name exactly one source instance (ScanNet and
 Omni6DPose: among the sequence's instances of that label; Waymo: among the boxes of the noun's
 type and size class visible in the video's camera at the asked frame; distances: among the
@@ -29,6 +39,7 @@ them) or ``not_visible_at_frame`` (visibility per candidate, frame).
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -65,14 +76,15 @@ LEGACY_TIE_BREAK = {"ScanNet": False, "Waymo": True, "Omni6DPose": False}
 DIMS = ("length", "width", "height")
 
 DIM_WORDING = {
-    "ScanNet": "Height is the vertical extent of the object's bounding box in the gravity-aligned scene frame; "
-               "length and width are its larger and smaller horizontal extents.",
+    "ScanNet": "The box is the object's tight upright bounding box in the gravity-aligned scene frame (its "
+               "footprint is the smallest-area rectangle around the object); height is its vertical extent, "
+               "length and width are its longer and shorter horizontal sides.",
     "Waymo": "Length, width and height are the box dimensions along its heading, across it, and vertically.",
     "Omni6DPose": "Length, width and height are the edge lengths of its annotated bounding box along the "
                   "object's own x, y and z axes.",
 }
 CHAIN = {
-    "ScanNet": "upright OBB of A·v (annotation frame) -> A^-1 (raw); camera P(t) = T_raw<-cam",
+    "ScanNet": "tight upright box of A·v (annotation frame) -> A^-1 (raw); camera P(t) = T_raw<-cam",
     "Waymo": "T_world<-box = world_from_vehicle(frame) [yaw(heading) | centre]; camera world_from_vehicle @ "
              "extrinsic @ waymo->opencv",
     "Omni6DPose": "T_cam<-obj (frame meta, OpenCV axes); lwh = scale * dimensions",
@@ -237,10 +249,22 @@ def _dimension(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[floa
     ev.update({"id": inst.id, "convention": inst.dims_rule, "dims_m": inst.dims.tolist()})
     if "aabb_ann_m" in inst.extra:
         ev["aabb_ann_m"] = inst.extra["aabb_ann_m"]
+        ev["box_hypotheses"] = {"tight": dimension_value(inst, which),
+                                "axis_aligned": float(inst.extra["aabb_ann_m"][DIMS.index(which)])}
     o.contract["entity"].update({"id": inst.id, "label": inst.label})
     o.contract["frame"] = "object box (" + inst.dims_rule + ")"
     o.transform_chain = CHAIN[view.source]
     return dimension_value(inst, which), ev
+
+
+def _axis_aligned(view: SceneView, inst: Instance) -> Instance | None:
+    """A ScanNet instance with its annotation-frame axis-aligned box (raw frame), or None."""
+    if view.source != "ScanNet":
+        return None
+    src = view.seq.instance(int(inst.id))
+    if src.axis_alignment is None:
+        return None
+    return dataclasses.replace(inst, box=src.aabb_raw)
 
 
 def _distance(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, dict]:
@@ -270,6 +294,9 @@ def _distance(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float
     inst = visible[0]
     d, dev = camera_distance(view, snap, inst)
     ev.update({"id": inst.id, "visibility": vis[cands.index(inst)], **dev})
+    alt = _axis_aligned(view, inst)
+    if alt is not None:
+        ev["box_hypotheses"] = {"tight": d, "axis_aligned": camera_distance(view, snap, alt)[0]}
     o.contract["entity"].update({"id": inst.id, "label": inst.label})
     o.contract["frame"] = snap.frame
     o.transform_chain = CHAIN[view.source]
@@ -303,6 +330,9 @@ def _pair(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, di
                         n_instances=[e["n_instances"] for e in evs])
     a, b = pairs[0]
     d, dev = pair_distance(a, b)
+    alt = [_axis_aligned(view, x) for x in (a, b)]
+    if all(x is not None for x in alt):
+        dev["box_hypotheses"] = {"tight": d, "axis_aligned": pair_distance(*alt)[0]}
     o.contract["entity"].update({"ids": [a.id, b.id], "labels": [a.label, b.label]})
     o.contract["frame"] = a.frame
     o.transform_chain = CHAIN[view.source]
@@ -310,21 +340,54 @@ def _pair(o: Outcome, c: dict, view: SceneView, params: dict) -> tuple[float, di
     return d, {"labels": [e["label"] for e in evs], "ids": [a.id, b.id], "frame": a.frame, **dev}
 
 
-def _other_convention(op: str, c: dict, ev: dict, detail, unit: str, rule) -> str | None:
-    """The legacy convention when a ScanNet length/width equals an annotation-frame axis extent instead.
+BOX_CONVENTIONS = {
+    "tight": "tight gravity-upright box (footprint = minimum-area rectangle; length / width = its longer / "
+             "shorter horizontal side)",
+    "axis_aligned": "axis-aligned box in the annotation frame (length / width = extents along the annotation "
+                    "frame's x / y axes)",
+}
 
-    Annotation-frame axis-aligned extents name "length" and "width" after the scene's x and y axes,
-    not after the object; a legacy value that agrees with that reading (and not with the larger /
-    smaller horizontal extent) is re-contracted, not corrected.
+
+def box_convention(pending: list[tuple], mixed_share: float = 0.25) -> dict:
+    """The box convention of the legacy ScanNet values: the majority of the rows that match exactly one.
+
+    ``pending``: ``(outcome, matches)`` with ``matches = {"tight": bool, "axis_aligned": bool}``.
+    Returns the counts, ``convention`` (``tight`` / ``axis_aligned`` / None when undetermined),
+    ``decided_by`` and ``mixed`` (the minority has at least ``mixed_share`` of the discriminating rows).
     """
-    which = c["params"].get("dimension")
-    if op != "dimension" or which not in ("length", "width") or "aabb_ann_m" not in ev:
-        return None
-    k = 0 if which == "length" else 1
-    if agrees_si(detail, ev["aabb_ann_m"][k], unit, rule):
-        return (f"{which} read as the extent along the annotation frame's {'xy'[k]} axis "
-                f"({ev['aabb_ann_m'][k]:.4f} m), not the {'larger' if k == 0 else 'smaller'} horizontal extent")
-    return None
+    d = {"n_rows": len(pending), "n_tight_only": 0, "n_axis_aligned_only": 0, "n_both": 0, "n_neither": 0}
+    for _o, m in pending:
+        key = {(True, False): "n_tight_only", (False, True): "n_axis_aligned_only", (True, True): "n_both",
+               (False, False): "n_neither"}[(m["tight"], m["axis_aligned"])]
+        d[key] += 1
+    lo, hi = sorted((d["n_tight_only"], d["n_axis_aligned_only"]))
+    d["mixed"] = bool(hi and lo / (lo + hi) >= mixed_share)
+    if d["n_tight_only"] != d["n_axis_aligned_only"]:
+        d["convention"] = "tight" if d["n_tight_only"] > d["n_axis_aligned_only"] else "axis_aligned"
+        d["decided_by"] = "majority of discriminating rows"
+    else:
+        d["convention"], d["decided_by"] = None, "undetermined: each row keeps the convention it matches"
+    if d["convention"]:
+        d["description"] = BOX_CONVENTIONS[d["convention"]]
+    return d
+
+
+def _adjudicate_boxes(pending: list[tuple], params: dict) -> None:
+    """Verdicts of the ScanNet rows under the task's diagnosed box convention (module docstring)."""
+    g = box_convention(pending, float(params.get("mixed_share", 0.25)))
+    for o, m in pending:
+        o.evidence["box_convention"] = dict(g)
+        if m["tight"] or not m["axis_aligned"]:
+            continue  # agrees under the tight box (verdict as compared), or under neither (corrected)
+        if g["convention"] == "tight" and not g["mixed"]:
+            o.evidence["coincidence"] = ("the legacy value also agrees with the axis-aligned box, a chance agreement "
+                                         "in a task whose rows use the tight box")
+            continue
+        o.verdict = "re-contracted"
+        o.defects = [x for x in o.defects if x != "value_mismatch"]
+        hyp = o.evidence["box_hypotheses"]
+        o.evidence["legacy_convention"] = (f"{BOX_CONVENTIONS['axis_aligned']}: {hyp['axis_aligned']:.4f} m "
+                                           f"(tight box: {hyp['tight']:.4f} m)")
 
 
 _OTHER_DIMS = re.compile(r"\b(diameter|radius|depth|thickness|volume|circumference|perimeter|area|size)\b",
@@ -367,6 +430,7 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
     """Dimensional Measurement outcomes, one per legacy row (see the module docstring)."""
     outs = []
     views: dict[str, SceneView] = {}
+    pending: list[tuple] = []  # ScanNet rows waiting for the task's box convention
     for r in rows.to_dict("records"):
         o = new_outcome(r, TASK)
         c = parse_question(r, video_map=ctx.video_map).to_dict()
@@ -394,12 +458,12 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
             continue
         cmp_ = compare(r.get("Answer Detail"), value, unit, rule_for(params, o.source))
         o.verdict = verdict_for(cmp_["comparable"], cmp_["agrees"])
-        alt = _other_convention(op, c, ev, r.get("Answer Detail"), unit, rule_for(params, o.source))
-        if o.verdict == "corrected" and alt:
-            o.verdict = "re-contracted"
-            ev["legacy_convention"] = alt
         if o.verdict == "corrected":
             o.defects.append("value_mismatch")
+        if "box_hypotheses" in ev and cmp_["comparable"]:
+            rule = rule_for(params, o.source)
+            pending.append((o, {k: agrees_si(r.get("Answer Detail"), v, unit, rule)
+                                for k, v in ev["box_hypotheses"].items()}))
         o.evidence.update({"operator": op, "value_si": value, "comparison": cmp_, **ev})
         o.contract.update({"unit": unit, "unit_stated": True, "times": [t]})
         o.contract["legacy_missing"], o.contract["missing"] = list(o.contract["missing"]), []
@@ -410,6 +474,7 @@ def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
         else:
             o.time_start, o.time_end = float(r["time_start"]), float(r["time_end"])
         o.answer = AnswerSpec("scalar", to_unit(value, unit), unit, int(params.get("decimals", 2)))
+    _adjudicate_boxes(pending, params)
     return outs
 
 

@@ -6,8 +6,13 @@ One output contract for every source: the object's box at the asked frame as
 ``T_cam<-box`` in OpenCV camera axes (+X right, +Y down, +Z forward) and its box-local edge lengths.
 
 - ScanNet: ``T_cam<-box(t) = P(t)^-1 A^-1 T_ann<-box`` with ``A = axisAlignment = T_ann<-raw``,
-  ``P(t) = T_raw<-cam`` at the frame of ``t`` and ``T_ann<-box`` the instance's axis-aligned box
-  of ``A @ mesh vertices`` (the annotation-frame box of 3D grounding datasets).
+  ``P(t) = T_raw<-cam`` at the frame of ``t`` and ``T_ann<-box`` the instance's tight
+  gravity-upright box of ``A @ mesh vertices`` (footprint = minimum-area rectangle, length >=
+  width, :func:`resti_lib.geometry.boxes.upright_oriented_box`). The box convention of the legacy
+  ``C_lwh`` (this tight box, or the axis-aligned box of 3D grounding datasets, extents along the
+  annotation axes) is diagnosed per task from the rows whose legacy sizes match exactly one of the
+  two, and stated in every ScanNet row's evidence (``box_convention``); the legacy-error centre
+  hypotheses use the axis-aligned box's centre, the published annotation-frame centre.
 - Waymo: the LiDAR box (vehicle frame of its frame timestamp) goes to the world through the
   vehicle pose of that frame and into the camera through the camera's vehicle pose and extrinsic:
   ``T_cam<-box = (W(t) E C)^-1 W(t) T_vehicle<-box`` with ``C = T_waymo_cam<-opencv_cam``.
@@ -218,9 +223,9 @@ def scannet_frame(scene: ScanNetScene, t: float, *, tol: float) -> tuple[int, fl
 
 
 def scannet_ann_box(inst) -> tuple[np.ndarray, np.ndarray]:
-    """``T_ann<-box`` and ``lwh`` of an instance: the axis-aligned box of ``A @ vertices``."""
-    bb = inst.aabb_ann
-    return make_T(np.eye(3), bb["center"]), np.asarray(bb["size"], dtype=np.float64)
+    """``T_ann<-box`` and ``lwh`` of an instance: the tight gravity-upright box of ``A @ vertices``."""
+    b = inst.obb_ann
+    return make_T(b.R, b.center), np.asarray(b.lwh, dtype=np.float64)
 
 
 def scannet_box(scene: ScanNetScene, object_id: int, t: float, *, tol: float = 0.004) -> CameraBox:
@@ -433,6 +438,7 @@ class Instance:
     hypotheses: dict = field(default_factory=dict)  # name -> camera-frame centre as the legacy prints it
     shifted: dict = field(default_factory=dict)  # family -> {offset: centre}
     headings: dict = field(default_factory=dict)  # convention -> degrees
+    sizes: dict = field(default_factory=dict)  # box convention -> lwh (ScanNet: the axis-aligned box too)
 
 
 @dataclass
@@ -498,10 +504,11 @@ def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
         T = Pi @ Ai @ T_ann_box
         box = CameraBox(T[:3, 3].copy(), lwh, T[:3, :3].copy(), "P(t)^-1 A^-1 T_ann<-box",
                         {"frame": f, "t": tf, "fps": scene.fps})
-        c = T_ann_box[:3, 3]
+        c = np.asarray(inst.aabb_ann["center"], dtype=np.float64)  # the published annotation-frame centre
         ch = np.append(c, 1.0)
         hyp = {
             "correct": box.center,
+            "correct_axis_aligned_centre": (Pi @ Ai @ ch)[:3],
             "alignment_omitted": (Pi @ ch)[:3],
             "alignment_inverted": (Pi @ A @ ch)[:3],
             "pose_not_inverted": (P @ Ai @ ch)[:3],
@@ -511,11 +518,12 @@ def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
         shifted = {"correct": {d: (S @ Ai @ ch)[:3] for d, S in shifts.items()},
                    "alignment_omitted": {d: (S @ ch)[:3] for d, S in shifts.items()}}
         headings = {"camera_atan2_R10_R00": box.heading,
-                    "camera_atan2_R10_R00_alignment_omitted": V.box_heading(Pi[:3, :3] @ T_ann_box[:3, :3]),
+                    "camera_atan2_R10_R00_alignment_omitted": V.box_heading(Pi[:3, :3]),  # axis-aligned box
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
         ok, z, uv = _project(intr, box.center, vis)
+        sizes = {"tight": lwh, "axis_aligned": np.asarray(inst.aabb_ann["size"], dtype=np.float64)}
         insts.append(Instance(str(oid), inst.label, box, np.asarray(native[oid], float), ok, z, uv, hyp, shifted,
-                              headings))
+                              headings, sizes))
     src0 = next(iter(scene.instances.values())).source if scene.instances else {}
     files = [str(scene.meta_path), track.source] + [src0.get(k) for k in ("aggregation", "segs", "ply") if src0]
     labels = {lab: [lab] for lab in sorted({i.label for i in scene.instances.values()})}
@@ -872,12 +880,17 @@ def audit_row(row: dict, ctx: SourceContext, p: dict) -> Outcome:
                                          "answer carries the complete rotation"}
         o.evidence["lwh"] = {"legacy": list(legacy.lwh), "source": box.lwh.tolist(),
                              "max_abs_diff_m": float(np.abs(np.array(legacy.lwh) - box.lwh).max())}
+        if target.sizes:
+            ltol = 0.5 * 10.0 ** -legacy.decimals + float(p["centre_abs_tol_m"])
+            o.evidence["lwh"]["hypotheses"] = {k: np.asarray(v).tolist() for k, v in target.sizes.items()}
+            o.evidence["lwh"]["matches"] = {k: bool(np.abs(np.array(legacy.lwh) - v).max() <= ltol)
+                                            for k, v in target.sizes.items()}
     winner = diag["winner"] if diag is not None else None
     same_target = diag is not None and diag["instance"] is target
     if legacy is None:
         o.verdict = verdict_for(False, None)
         o.evidence["verdict_reason"] = "legacy detail unreadable; the box is derived under the explicit contract"
-    elif winner == "correct" and same_target:
+    elif winner in ("correct", "correct_axis_aligned_centre") and same_target:
         o.verdict = verdict_for(False, None)
         o.evidence["verdict_reason"] = ("legacy centre consistent with the source; heading convention unstated "
                                         "and the complete rotation added")
@@ -905,10 +918,38 @@ def _excl_ev(ref_ev: dict, view: FrameView) -> dict:
             "source_labels": ref_ev.get("source_labels"), "t": view.t, "frame": dict(view.frame)}
 
 
+def box_convention(outcomes: list[Outcome]) -> dict:
+    """The box convention of the legacy ScanNet ``C_lwh``: the majority of the rows whose legacy sizes
+    match exactly one of the tight box and the annotation-frame axis-aligned box (counts, decision)."""
+    d = {"n_rows": 0, "n_tight_only": 0, "n_axis_aligned_only": 0, "n_both": 0, "n_neither": 0}
+    for o in outcomes:
+        m = o.evidence.get("lwh", {}).get("matches")
+        if not m:
+            continue
+        d["n_rows"] += 1
+        key = {(True, False): "n_tight_only", (False, True): "n_axis_aligned_only", (True, True): "n_both",
+               (False, False): "n_neither"}[(m["tight"], m["axis_aligned"])]
+        d[key] += 1
+    if d["n_tight_only"] != d["n_axis_aligned_only"]:
+        d["convention"] = ("tight upright box (minimum-area footprint; length >= width)"
+                           if d["n_tight_only"] > d["n_axis_aligned_only"] else
+                           "axis-aligned box in the annotation frame (extents along the annotation x, y, z axes)")
+        d["decided_by"] = "majority of the rows whose legacy sizes match exactly one convention"
+    else:
+        d["convention"], d["decided_by"] = None, "undetermined (no majority of discriminating rows)"
+    d["note"] = "the repaired answer is the tight upright box with its complete rotation"
+    return d
+
+
 def audit(rows: pd.DataFrame, ctx: SourceContext, params: dict) -> list[Outcome]:
     """One :class:`~resti_lib.tasks.base.Outcome` per legacy grounding row (see the module docstring)."""
     p = task_params(params)
-    return [audit_row(r, ctx, p) for r in rows.to_dict("records")]
+    outs = [audit_row(r, ctx, p) for r in rows.to_dict("records")]
+    conv = box_convention(outs)
+    for o in outs:
+        if o.evidence.get("lwh", {}).get("matches"):
+            o.evidence["box_convention"] = dict(conv)
+    return outs
 
 
 # ===================================================================================== tables
