@@ -321,8 +321,9 @@ class RopeScene:
         """Camera axes of the stored object poses, verified against the intrinsics.
 
         Under the right reading (``opencv``: +Z forward; ``opengl``: +Z backward, +Y up) the valid
-        objects' centres lie in front of the camera and project inside the image. The reading with
-        at least 90 % of the centres in front and inside wins.
+        objects' centres lie in front of the camera and project inside the image: the reading with
+        at least 90 % of the centres in front and half of them inside the image holds (the two
+        readings disagree on the sign of every depth, so at most one holds).
 
         Raises
         ------
@@ -351,10 +352,10 @@ class RopeScene:
             inside = front & (u >= 0) & (u < K[:, 4]) & (v >= 0) & (v < K[:, 5])
             cands.append({"axes": axes, "n_objects": len(p), "n_positive_depth": int(front.sum()),
                           "n_inside_image": int(inside.sum()), "inside_fraction": float(inside.mean()),
-                          "holds": bool(inside.mean() >= 0.9)})
+                          "holds": bool(front.mean() >= 0.9 and inside.mean() >= 0.5)})
         holding = [c for c in cands if c["holds"]]
-        ev = {"check": "valid objects' camera-frame centres: depth > 0 and projection inside the image with "
-                       "the frame intrinsics (90 % at least)", "candidates": cands}
+        ev = {"check": "valid objects' camera-frame centres: depth > 0 (90 % at least) and projection inside the "
+                       "image with the frame intrinsics (half at least)", "candidates": cands}
         if not holding:
             raise InputError("no camera-axis convention places the annotated objects in front of the camera "
                              "and inside the image", file=self.dir, field="objects")
@@ -602,11 +603,13 @@ class RopeScene:
         """World up in the first camera frame from the static objects' up axes, and the evidence.
 
         Each static object's up axis (``tag.upAxis`` of the object meta, object space; +y when not
-        given) is expressed in ``c0``; the direction shared (within :data:`UP_CONSENSUS_DEG`) by the
-        most objects wins and its members are averaged. Without any: the first camera's -Y.
+        given, or without the object meta file) is expressed in ``c0``; the direction shared (within
+        :data:`UP_CONSENSUS_DEG`) by the most objects wins and its members are averaged.
         """
         T, _ = self.object_camera_poses
-        inst = self.object_meta.instance_dict
+        # the up axes need the object meta; without the file every object takes +y (Omni6DPose objects
+        # are modelled y-up); a damaged file is an error
+        inst = self.object_meta.instance_dict if self.obj_meta_path.exists() else {}
         vecs, names = [], []
         for oid, Tc0 in sorted(self._placed.items()):
             tag = getattr(inst[oid], "tag", None) if oid in inst else None
@@ -639,6 +642,17 @@ class RopeScene:
             R = invert_T(self._world_from_cv(self.frames[0], conv["direction"], conv["axes"]))[:3, :3]
             return R @ np.asarray(up_scene, dtype=np.float64)
         return self.gravity[0].copy()
+
+    def camera_notes(self, up_scene) -> list[str]:
+        """Short evidence lines for ``resti measure``: the camera source, the static objects and the ones
+        left out, and where world up comes from."""
+        ev = self.camera_evidence()
+        left = ", ".join(f"{x['oid']} ({x['reason']})" for x in ev["left_out"]) or "none"
+        up = (f"up = scene {list(up_scene)}" if self.convention[0]["camera"] == "stored" else
+              f"up = static objects' up axes ({self.gravity[1].get('n_agreeing', 0)} agree): "
+              f"{np.round(self.gravity[0], 6).tolist()} in the first camera")
+        return [f"camera: {ev['camera_source']}", f"static objects: {', '.join(ev['static_objects'])}",
+                f"left out: {left}", up]
 
     def object_boxes(self, frame: int) -> list[dict]:
         """Camera-frame boxes of the frame's objects (OpenCV axes).

@@ -135,7 +135,7 @@ def camera_numbers(table: pa.Table, path: str | Path, column: str = KEY_CAMERA) 
         uniq, inv = np.unique(vals, return_inverse=True)
         names = {v: k for k, v in CAMERA_NAMES.items()}
         nums = []
-        for j, u in enumerate(uniq):
+        for j, u in enumerate(uniq.tolist()):
             key = u.strip().upper()
             n = int(key) if key.isdigit() else names.get(key)
             if n not in CAMERA_NAMES:
