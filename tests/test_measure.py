@@ -194,7 +194,7 @@ def test_measure_rope_camera_written_the_real_way(miniworld, tmp_path, capsys):
     assert all(m["camera"]["translation"] == [0.0, 0.0, 0.0] for m in metas)
     seen = [{o["meta"]["oid"] for o in m["objects"].values()} for m in metas]
     mover = scene["moving_object"]
-    k0 = 30 * int(math.ceil(mover["frames"][0] / 30))  # an interval over the re-placement
+    k0 = 30 * math.ceil(mover["frames"][0] / 30)  # an interval over the re-placement
     k1 = k0 + 90
     oid = next(o["oid"] for o in scene["objects"] if o["oid"] != mover["oid"]
                and all(o["oid"] in seen[k] for k in [0, *range(k0, k1 + 1)]))

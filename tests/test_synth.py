@@ -729,7 +729,7 @@ def test_omni_pose_truth_by_hand(world, manifest, info):
         k1 = int(round(m["contract"]["times"][0] * 30))
         p0, _ = _rope_poses(d / "000000_meta.json")
         p1, _ = _rope_poses(d / f"{k1:06d}_meta.json")
-        oid = sorted(set(p0) & set(p1) - {movers[m["sequence"]]})[0]
+        oid = min(set(p0) & set(p1) - {movers[m["sequence"]]})
         rel = p0[oid] @ np.linalg.inv(p1[oid])
         assert np.allclose([m["true_value"][x] for x in ("tx", "ty", "tz")], rel[:3, 3], atol=1e-5)
         R = np.array([[m["true_value"][f"r{i}{j}"] for j in (1, 2, 3)] for i in (1, 2, 3)])

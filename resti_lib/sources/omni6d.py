@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from resti_lib.errors import InputError
-from resti_lib.geometry.frames import apply_T, check_rotation, invert_T, make_T, quat_wxyz_to_matrix
+from resti_lib.geometry.frames import check_rotation, invert_T, make_T, quat_wxyz_to_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 
 try:
@@ -606,7 +606,7 @@ class RopeScene:
         given, or without the object meta file) is expressed in ``c0``; the direction shared (within
         :data:`UP_CONSENSUS_DEG`) by the most objects wins and its members are averaged.
         """
-        T, _ = self.object_camera_poses
+        self.object_camera_poses  # noqa: B018 -- places the static objects in c0 (self._placed)
         # the up axes need the object meta; without the file every object takes +y (Omni6DPose objects
         # are modelled y-up); a damaged file is an error
         inst = self.object_meta.instance_dict if self.obj_meta_path.exists() else {}

@@ -408,8 +408,8 @@ def _move(rng: np.random.Generator, scene: RopeScene, o: RopeObject) -> bool:
     """Re-place object ``o`` during the video: slid 12-20 cm and turned 20-40 degrees on the table
     over 1.5-2.5 s (smoothstep), static before and after. False when no free spot is found."""
     n = scene.n_frames
-    k0 = int(round(rng.uniform(0.3, 0.5) * n))
-    k1 = min(k0 + int(round(rng.uniform(1.5, 2.5) * FPS)), n - 1)
+    k0 = round(rng.uniform(0.3, 0.5) * n)
+    k1 = min(k0 + round(rng.uniform(1.5, 2.5) * FPS), n - 1)
     rad = 0.5 * float(np.linalg.norm(o.side[:2]))
     placed = [(q.T_world[:2, 3], 0.5 * float(np.linalg.norm(q.side[:2]))) for q in scene.objects
               if q is not o and q.on_top_of is None]
