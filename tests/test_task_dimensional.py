@@ -176,6 +176,40 @@ def test_scene_view_world_box_pair(roots):
     assert R.box_box_distance(a.box, far.box)[0] == pytest.approx(3.0)  # [0,2] to [5,6] along x
 
 
+def _row(tight, axis_aligned, verdict="corrected"):
+    from types import SimpleNamespace
+
+    return (SimpleNamespace(verdict=verdict, defects=["value_mismatch"] if verdict == "corrected" else [],
+                            evidence={"box_hypotheses": {"tight": 1.0, "axis_aligned": 1.2}}),
+            {"tight": tight, "axis_aligned": axis_aligned})
+
+
+def test_box_convention_majority_and_chance_agreement():
+    from resti_lib.tasks import dimensional as D
+
+    # three rows agree only with the axis-aligned box, one only with the tight box: axis-aligned rules
+    rows = [_row(False, True), _row(False, True), _row(False, True), _row(True, False, "retained"),
+            _row(True, True, "retained"), _row(False, False)]
+    D._adjudicate_boxes(rows, {"mixed_share": 0.5})
+    g = rows[0][0].evidence["box_convention"]
+    assert (g["convention"], g["n_axis_aligned_only"], g["n_tight_only"], g["n_both"], g["n_neither"]) == \
+        ("axis_aligned", 3, 1, 1, 1)
+    assert [o.verdict for o, _ in rows] == ["re-contracted"] * 3 + ["retained", "retained", "corrected"]
+    assert rows[0][0].defects == [] and rows[5][0].defects == ["value_mismatch"]
+    # the other way round: a lone axis-aligned match in a tight-box task is a chance agreement ...
+    rows = [_row(True, False, "retained") for _ in range(4)] + [_row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[4][0].verdict == "corrected" and "chance agreement" in rows[4][0].evidence["coincidence"]
+    # ... unless the task is mixed (the minority has a quarter of the discriminating rows at least)
+    rows = [_row(True, False, "retained") for _ in range(3)] + [_row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[3][0].evidence["box_convention"]["mixed"] and rows[3][0].verdict == "re-contracted"
+    # no majority: each row keeps its own match
+    rows = [_row(True, False, "retained"), _row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[0][0].evidence["box_convention"]["convention"] is None and rows[1][0].verdict == "re-contracted"
+
+
 # ----------------------------------------------------------------------------- the mini-world
 
 
