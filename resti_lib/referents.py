@@ -52,9 +52,9 @@ from scipy.optimize import lsq_linear
 from .defaults import setting
 from .errors import ContractError, InputError
 from .geometry import trajectory as G
+from .geometry.boxes import OrientedBox, upright_oriented_box
 from .geometry.frames import apply_T, invert_T, make_T
 from .sources.context import derived
-from .sources.scannet import OrientedBox, upright_oriented_box
 
 __all__ = [
     "CUT_WORDS",

@@ -366,6 +366,27 @@ def test_diagnosis_and_distances(mini):
             assert o.evidence["diagnosis"]["residuals_m"]["correct"] > 0.1
 
 
+def test_box_convention_and_rope_camera_evidence(mini, miniworld):
+    """The legacy ScanNet C_lwh were built on the annotation-frame axis-aligned box (world.json): the
+    task finds that convention from the rows whose sizes match one box only; the repaired box is the
+    tight one. ROPE rows name the camera track's static objects and the re-placed object left out."""
+    info = json.loads((miniworld / "world.json").read_text())
+    assert "axis-aligned box in the annotation frame" in info["conventions"]["scannet_boxes"]
+    sn = [o for o in mini.run.outcomes if o.source == "ScanNet" and "box_convention" in o.evidence]
+    assert sn and all(o.evidence["box_convention"] == sn[0].evidence["box_convention"] for o in sn)
+    conv = sn[0].evidence["box_convention"]
+    assert conv["convention"].startswith("axis-aligned") and conv["n_tight_only"] == 0
+    assert conv["n_axis_aligned_only"] >= 3 and conv["n_neither"] == 0
+    moving = {s["scene"]: s["moving_object"]["oid"] for s in info["sequences"]["omni6d"] if s["moving_object"]}
+    rope = [o for o in mini.run.outcomes if o.source == "Omni6DPose" and o.verdict != "excluded"]
+    assert rope
+    for o in rope:
+        ev = o.evidence["camera_track"]
+        scene = o.video.split(".")[0]
+        assert [x["oid"] for x in ev["left_out"]] == ([moving[scene]] if scene in moving else [])
+        assert "no motion" in ev["stored_camera"]
+
+
 def test_questions_state_the_contract(mini):
     for o in mini.run.outcomes:
         if o.verdict == "excluded":

@@ -156,8 +156,6 @@ def test_notebook_parameters():
 
 
 class _Rope:
-    convention = ("stub",)
-
     def __init__(self, track):
         self.track, self.dir, self.obj_meta_path = track, "ROPE/000001", "Meta/real_obj_meta.json"
 
@@ -166,6 +164,9 @@ class _Rope:
 
     def world_up_in_track_frame(self, up):
         return np.asarray(up, float)
+
+    def camera_notes(self, up):
+        return []
 
 
 class _Ctx:

@@ -4,8 +4,9 @@ One output contract for every source: the object's box at the asked frame as ``T
 OpenCV camera axes (+X right, +Y down, +Z forward) and its box-local edge lengths.
 
 - ScanNet: ``T_cam<-box(t) = P(t)^-1 A^-1 T_ann<-box`` with ``A = axisAlignment = T_ann<-raw``,
-  ``P(t) = T_raw<-cam`` at the frame of ``t`` and ``T_ann<-box`` the instance's axis-aligned box
-  of ``A @ mesh vertices`` (the annotation-frame box of 3D grounding datasets).
+  ``P(t) = T_raw<-cam`` at the frame of ``t`` and ``T_ann<-box`` the instance's tight
+  gravity-upright box of ``A @ mesh vertices`` (footprint = minimum-area rectangle, length >=
+  width, :func:`resti_lib.geometry.boxes.upright_oriented_box`).
 - Waymo: the LiDAR box (vehicle frame of its frame timestamp) goes to the world through the
   vehicle pose of that frame and into the camera through the camera's vehicle pose and extrinsic:
   ``T_cam<-box = (W(t) E C)^-1 W(t) T_vehicle<-box`` with ``C = T_waymo_cam<-opencv_cam``.
@@ -139,9 +140,9 @@ def scannet_frame(scene: ScanNetScene, t: float, *, tol: float) -> tuple[int, fl
 
 
 def scannet_ann_box(inst) -> tuple[np.ndarray, np.ndarray]:
-    """``T_ann<-box`` and ``lwh`` of an instance: the axis-aligned box of ``A @ vertices``."""
-    bb = inst.aabb_ann
-    return make_T(np.eye(3), bb["center"]), np.asarray(bb["size"], dtype=np.float64)
+    """``T_ann<-box`` and ``lwh`` of an instance: the tight gravity-upright box of ``A @ vertices``."""
+    b = inst.obb_ann
+    return make_T(b.R, b.center), np.asarray(b.lwh, dtype=np.float64)
 
 
 def scannet_box(scene: ScanNetScene, object_id: int, t: float, *, tol: float = 0.004) -> CameraBox:

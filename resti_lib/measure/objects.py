@@ -2,7 +2,7 @@
 
 ``dimension``
     ``{"length", "width", "height"}`` (m) of the object's box under its source convention
-    (ScanNet: the gravity-upright oriented box of the mesh vertices in the annotation frame;
+    (ScanNet: the tight gravity-upright box of the mesh vertices in the annotation frame;
     Waymo: the LiDAR box at ``times[0]``; Omni6DPose: ``scale * dimensions`` along the object axes).
 ``distance_to_camera``
     Distance (m) from the camera's optical centre to the nearest point of the solid box at
@@ -23,7 +23,7 @@ __all__ = ["CHAIN", "DIMS", "camera_distance", "dimension_value", "instance_at",
 
 DIMS = ("length", "width", "height")
 CHAIN = {
-    "ScanNet": "upright OBB of A·v (annotation frame) -> A^-1 (raw); camera P(t) = T_raw<-cam",
+    "ScanNet": "tight upright box of A·v (annotation frame) -> A^-1 (raw); camera P(t) = T_raw<-cam",
     "Waymo": "T_world<-box = world_from_vehicle(frame) [yaw(heading) | centre]; camera world_from_vehicle @ "
              "extrinsic @ waymo->opencv",
     "Omni6DPose": "T_cam<-obj (frame meta, OpenCV axes); lwh = scale * dimensions",

@@ -210,8 +210,7 @@ class MeasureContext:
             tr = sc.camera_track(rebase=True)
             up = tuple(float(x) for x in sc.world_up_in_track_frame(up_scene))
             return EntityTrack(tr, (0.0, 0.0, 1.0), up, "ROPE camera frame at the first frame",
-                               "camera (T_c0<-cam, OpenCV axes)",
-                               [f"convention {sc.convention[0]}", f"up = scene {list(up_scene)}"])
+                               "camera (T_c0<-cam, OpenCV axes)", sc.camera_notes(up_scene))
 
         return self._cached_track(("camera", str(up_scene)), make)
 
@@ -246,7 +245,7 @@ class MeasureContext:
             up = tuple(float(x) for x in sc.world_up_in_track_frame(up_scene))
             return EntityTrack(sc.object_track(str(oid)), fwd, up, "ROPE camera frame at the first frame",
                                f"object {oid} (T_c0<-obj via camera poses)",
-                               [f"object forward = box {list(fwd)}", f"up = scene {list(up_scene)}"])
+                               [f"object forward = box {list(fwd)}", *sc.camera_notes(up_scene)])
 
         return self._cached_track(("object", str(oid), str(up_scene), fwd), make)
 

@@ -16,6 +16,16 @@ Contract per operator (the rewritten question states each part):
     Minimum Euclidean distance between the two solid oriented boxes
     (:func:`resti_lib.referents.box_box_distance`; 0 when they touch or overlap).
 
+ScanNet box convention (diagnosed per task, as Speed diagnoses its statistic): every ScanNet value
+is computed under the tight gravity-upright box (footprint = minimum-area rectangle; length and
+width its longer and shorter horizontal sides) and under the axis-aligned box in the annotation
+frame (length / width = extents along the annotation frame's x / y axes, the box of 3D grounding
+datasets). The legacy convention is the one matched by the majority of the rows that match exactly
+one of the two; a row whose legacy value agrees only under it is *re-contracted* (the clarified
+question states the tight box), one that agrees only under the other convention is a chance
+agreement (*corrected*, noted). With no majority each row keeps its own match. The counts and the
+decision are in every ScanNet row's evidence (``box_convention``).
+
 Referents: the description's head noun must name exactly one source instance (ScanNet and
 Omni6DPose: among the sequence's instances of that label; Waymo: among the boxes of the noun's
 type and size class visible in the video's camera at the asked frame; distances: among the
@@ -29,6 +39,7 @@ Every value is the measure operator of the same name (:mod:`resti_lib.measure.ob
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -38,7 +49,7 @@ from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
 from ..contract import Contract, base_contract, description, instant, object_pair
 from ..errors import ContractError
-from ..measure.objects import CHAIN
+from ..measure.objects import CHAIN, DIMS, camera_distance, pair_distance
 from ..referents import Instance, Referent, SceneView, Snapshot, noun_phrase, read_phrase
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Task
@@ -55,8 +66,9 @@ from .scalar_audit import (
 TASK = "Dimensional Measurement"
 
 DIM_WORDING = {
-    "ScanNet": "Height is the vertical extent of the object's bounding box in the gravity-aligned scene frame; "
-               "length and width are its larger and smaller horizontal extents.",
+    "ScanNet": "The box is the object's tight upright bounding box in the gravity-aligned scene frame (its "
+               "footprint is the smallest-area rectangle around the object); height is its vertical extent, "
+               "length and width are its longer and shorter horizontal sides.",
     "Waymo": "Length, width and height are the box dimensions along its heading, across it, and vertically.",
     "Omni6DPose": "Length, width and height are the edge lengths of its annotated bounding box along the "
                   "object's own x, y and z axes.",
@@ -70,6 +82,69 @@ _BETWEEN = re.compile(r"\bbetween\s+(.+?)\?", re.IGNORECASE)
 
 def _spread(values: list[float]) -> float:
     return float(max(values) - min(values)) if values else 0.0
+
+
+def _axis_aligned(view: SceneView, inst: Instance) -> Instance | None:
+    """A ScanNet instance with its annotation-frame axis-aligned box (raw frame), or None."""
+    if view.source != "ScanNet":
+        return None
+    src = view.seq.instance(int(inst.id))
+    if src.axis_alignment is None:
+        return None
+    return dataclasses.replace(inst, box=src.aabb_raw)
+
+
+BOX_CONVENTIONS = {
+    "tight": "tight gravity-upright box (footprint = minimum-area rectangle; length / width = its longer / "
+             "shorter horizontal side)",
+    "axis_aligned": "axis-aligned box in the annotation frame (length / width = extents along the annotation "
+                    "frame's x / y axes)",
+}
+
+
+def box_convention(pending: list[tuple], mixed_share: float = 0.25) -> dict:
+    """The box convention of the legacy ScanNet values: the majority of the rows that match exactly one.
+
+    ``pending``: ``(diagnosis, matches)`` with ``matches = {"tight": bool, "axis_aligned": bool}``.
+    Returns the counts, ``convention`` (``tight`` / ``axis_aligned`` / None when undetermined),
+    ``decided_by`` and ``mixed`` (the minority has at least ``mixed_share`` of the discriminating rows).
+    """
+    d = {"n_rows": len(pending), "n_tight_only": 0, "n_axis_aligned_only": 0, "n_both": 0, "n_neither": 0}
+    for _o, m in pending:
+        key = {(True, False): "n_tight_only", (False, True): "n_axis_aligned_only", (True, True): "n_both",
+               (False, False): "n_neither"}[(m["tight"], m["axis_aligned"])]
+        d[key] += 1
+    lo, hi = sorted((d["n_tight_only"], d["n_axis_aligned_only"]))
+    d["mixed"] = bool(hi and lo / (lo + hi) >= mixed_share)
+    if d["n_tight_only"] != d["n_axis_aligned_only"]:
+        d["convention"] = "tight" if d["n_tight_only"] > d["n_axis_aligned_only"] else "axis_aligned"
+        d["decided_by"] = "majority of discriminating rows"
+    else:
+        d["convention"], d["decided_by"] = None, "undetermined: each row keeps the convention it matches"
+    if d["convention"]:
+        d["description"] = BOX_CONVENTIONS[d["convention"]]
+    return d
+
+
+def _adjudicate_boxes(pending: list[tuple], params: dict) -> None:
+    """Verdicts of the ScanNet rows under the task's diagnosed box convention (module docstring).
+
+    ``pending``: ``(diagnosis, matches)``; a diagnosis has ``verdict``, ``defects`` and ``evidence``
+    (with ``box_hypotheses``)."""
+    g = box_convention(pending, float(params.get("mixed_share", 0.25)))
+    for o, m in pending:
+        o.evidence["box_convention"] = dict(g)
+        if m["tight"] or not m["axis_aligned"]:
+            continue  # agrees under the tight box (verdict as compared), or under neither (corrected)
+        if g["convention"] == "tight" and not g["mixed"]:
+            o.evidence["coincidence"] = ("the legacy value also agrees with the axis-aligned box, a chance agreement "
+                                         "in a task whose rows use the tight box")
+            continue
+        o.verdict = "re-contracted"
+        o.defects = [x for x in o.defects if x != "value_mismatch"]
+        hyp = o.evidence["box_hypotheses"]
+        o.evidence["legacy_convention"] = (f"{BOX_CONVENTIONS['axis_aligned']}: {hyp['axis_aligned']:.4f} m "
+                                           f"(tight box: {hyp['tight']:.4f} m)")
 
 
 def unsupported(question: str | None) -> Exclude:
@@ -185,6 +260,8 @@ class Dimensional(Task):
         ev.update({"id": inst.id, "convention": inst.dims_rule, "dims_m": inst.dims.tolist()})
         if "aabb_ann_m" in inst.extra:
             ev["aabb_ann_m"] = inst.extra["aabb_ann_m"]
+            ev["box_hypotheses"] = {"tight": value(inst),
+                                    "axis_aligned": float(inst.extra["aabb_ann_m"][DIMS.index(which)])}
         c.entity.update({"id": inst.id, "label": inst.label})
         c.frame = "object box (" + inst.dims_rule + ")"
         return value(inst), ev
@@ -219,6 +296,9 @@ class Dimensional(Task):
         m = measured(inst)
         dev = {k: v for k, v in m.evidence.items() if k in ("camera_centre", "nearest_box_point", "frame", "geometry")}
         ev.update({"id": inst.id, "visibility": vis[cands.index(inst)], **dev})
+        alt = _axis_aligned(view, inst)
+        if alt is not None:
+            ev["box_hypotheses"] = {"tight": m.value, "axis_aligned": camera_distance(view, snap, alt)[0]}
         c.entity.update({"id": inst.id, "label": inst.label})
         c.frame = snap.frame
         return m.value, ev
@@ -253,8 +333,12 @@ class Dimensional(Task):
         c.entity.update({"ids": m.evidence["ids"], "labels": m.evidence["labels"]})
         c.frame = m.evidence["frame"]
         case.provenance(frames={"t": t})
-        return m.value, {"labels": [e["label"] for e in evs], "ids": m.evidence["ids"], "frame": m.evidence["frame"],
-                         "geometry": m.evidence["geometry"], "nearest_points": m.evidence["nearest_points"]}
+        ev = {"labels": [e["label"] for e in evs], "ids": m.evidence["ids"], "frame": m.evidence["frame"],
+              "geometry": m.evidence["geometry"], "nearest_points": m.evidence["nearest_points"]}
+        alt = [_axis_aligned(view, view.world_box(i, t)) for i in pairs[0]]
+        if all(x is not None for x in alt):
+            ev["box_hypotheses"] = {"tight": m.value, "axis_aligned": pair_distance(*alt)[0]}
+        return m.value, ev
 
     def reconstruct(self, case: Case) -> None:
         c, params = case.contract, case.params
@@ -287,33 +371,20 @@ class Dimensional(Task):
 
     def diagnose(self, case: Case) -> None:
         ev, unit, op = case.state["ev"], case.state["unit"], case.contract.operator
-        rule = rule_for(case.params, case.source)
-        cmp = compare_scalar(case.legacy, case.value, unit, rule)
-        d = Diagnosis(bool(cmp["comparable"]), cmp["agrees"])
-        alt = self._other_convention(op, case.contract.params.get("dimension"), ev, case.legacy, unit, rule)
-        if d.final_verdict == "corrected" and alt:
-            d.verdict = "re-contracted"
-            ev["legacy_convention"] = alt
-        if d.final_verdict == "corrected":
-            d.defects.append("value_mismatch")
-        d.evidence = {"operator": op, "value_si": case.value, "comparison": cmp, **ev}
-        case.diagnosis = d
+        cmp = compare_scalar(case.legacy, case.value, unit, rule_for(case.params, case.source))
+        case.diagnosis = Diagnosis.from_comparison(cmp, operator=op, value_si=case.value, **ev)
 
-    @staticmethod
-    def _other_convention(op: str, which: str | None, ev: dict, legacy, unit: str, rule) -> str | None:
-        """The legacy convention when a ScanNet length/width equals an annotation-frame axis extent instead.
-
-        Annotation-frame axis-aligned extents name "length" and "width" after the scene's x and y axes,
-        not after the object; a legacy value that agrees with that reading (and not with the larger /
-        smaller horizontal extent) is re-contracted, not corrected.
-        """
-        if op != "dimension" or which not in ("length", "width") or "aabb_ann_m" not in ev:
-            return None
-        k = 0 if which == "length" else 1
-        if agrees_scalar(legacy, ev["aabb_ann_m"][k], unit, rule):
-            return (f"{which} read as the extent along the annotation frame's {'xy'[k]} axis "
-                    f"({ev['aabb_ann_m'][k]:.4f} m), not the {'larger' if k == 0 else 'smaller'} horizontal extent")
-        return None
+    def diagnose_all(self, cases: list[Case]) -> None:
+        pending = []  # ScanNet rows waiting for the task's box convention
+        for k in cases:
+            self.diagnose(k)
+            d, hyp = k.diagnosis, k.state["ev"].get("box_hypotheses")
+            if hyp and d.comparable:
+                rule = rule_for(k.params, k.source)
+                d.verdict = d.final_verdict
+                pending.append((d, {x: agrees_scalar(k.legacy, v, k.state["unit"], rule) for x, v in hyp.items()}))
+        if cases:
+            _adjudicate_boxes(pending, cases[0].params)
 
     def rewrite(self, case: Case) -> str:
         c, source, unit, t = case.contract, case.source, case.state["unit"], float(case.contract.times[0])

@@ -108,7 +108,11 @@ def camera_subject(view: SceneView) -> Subject:
     else:
         tr = view.seq.camera_track(rebase=True)
         files = [str(view.seq.dir)]
-        chain = "T_c0<-cam(t) (ROPE camera pose, verified convention, rebased to the first frame)"
+        chain = ("T_c0<-cam(t) = T_c0<-obj T_cam(t)<-obj^-1 over the static ROPE objects (or a stored camera "
+                 "pose that agrees with them), first frame as the world")
+        return Subject("camera", tr, "the camera", {"subject": "camera", "track": tr.name, "transform_chain": chain,
+                                                    "camera_track": tr.meta.get("evidence")},
+                       {"kind": "camera"}, files)
     return Subject("camera", tr, "the camera", {"subject": "camera", "track": tr.name, "transform_chain": chain},
                    {"kind": "camera"}, files)
 

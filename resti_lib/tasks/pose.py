@@ -64,7 +64,8 @@ WORLD = {
 CHAIN = {
     "ScanNet": "P(t) = T_raw<-cam(t) (.sens camera_to_world, OpenCV axes)",
     "Waymo": "P(t) = world_from_vehicle(t) @ extrinsic(camera) @ T_waymo_cam<-cv_cam",
-    "Omni6DPose": "P(t) = T_scene<-cam(t0)^-1 @ T_scene<-cam(t) (stored convention verified, OpenCV axes)",
+    "Omni6DPose": "P(t) = T_c0<-cam(t0)^-1 @ T_c0<-cam(t), T_c0<-cam(t) = T_c0<-obj T_cam(t)<-obj^-1 over the "
+                  "static objects (OpenCV axes)",
 }
 AXES = "OpenCV camera axes (+X right, +Y down, +Z forward)"
 
@@ -271,6 +272,8 @@ class Pose(Task):
         src = c.source
         track, up, files = camera_track(case.ctx, c, p)
         case.provenance(files=files, chain=CHAIN[src])
+        if src == "Omni6DPose":  # where the camera motion comes from (static objects, left-out movers)
+            o.evidence["camera_track"] = track.meta.get("evidence")
         o.evidence["legacy_missing"] = list(c.missing)
         t1 = float(c.times[0]) if c.times else float(r["time_end"])
         stated_t0 = float(c.params.get("premise_time", r.get("time_start") or 0.0))
