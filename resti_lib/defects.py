@@ -44,7 +44,8 @@ _DEFECTS = [
     Defect("unit_tag_missing", "question", "unit tag",
            "the question does not state the unit of the answer"),
     Defect("statistic_unnamed", "question", "unnamed statistic",
-           "a rate question names 'average speed' but the value is displacement / time"),
+           "the question leaves the statistic open ('average speed', 'how far has X traveled') and the "
+           "value is the endpoint-displacement reading"),
     # source layer
     Defect("grounding_alignment_omitted", "source", "source geometry",
            "camera-frame box computed as P(t)^-1 c_ann (axis alignment omitted)"),
@@ -54,6 +55,8 @@ _DEFECTS = [
            "pose matrix taken from a different timestamp than the one asked"),
     Defect("speed_is_displacement_over_time", "source", "source geometry",
            "'average speed' value equals endpoint displacement / elapsed time"),
+    Defect("distance_traveled_is_displacement", "source", "source geometry",
+           "'how far has X traveled' value equals the endpoint displacement, not the path length"),
     Defect("trajectory_10m_grid", "source", "source geometry",
            "trajectory distances rounded to a 10 m grid"),
     Defect("value_mismatch", "source", "source geometry",
@@ -95,11 +98,3 @@ REASONS: dict[str, str] = {
     "malformed_row": "the legacy row cannot be parsed",
     "unsupported_question": "the question does not match a known contract for the task",
 }
-
-
-def layer_of(code: str) -> str:
-    return DEFECTS[code].layer
-
-
-def category_of(code: str) -> str:
-    return DEFECTS[code].category

@@ -55,6 +55,31 @@ _UNITS: dict[str, tuple[str, float, str]] = {
     "": ("", 1.0, "number"),
 }
 
+
+
+def canonical_unit(unit: str) -> str | None:
+    """The canonical spelling of a unit text (``"deg"`` -> ``"°"``, ``"m/s^2"`` -> ``"m/s²"``), or None."""
+    u = str(unit).strip()
+    hit = _UNITS.get(u, _UNITS.get(u.lower()))
+    return hit[0] if hit else None
+
+
+def si_factor(unit: str) -> float:
+    """SI value of one ``unit`` (``cm`` -> 0.01); the one unit table of the package."""
+    u = canonical_unit(unit)
+    if u is None:
+        raise InputError(f"unknown unit {unit!r}", field="unit")
+    return _UNITS[u][1]
+
+
+def unit_dimension(unit: str) -> str:
+    """``length``, ``speed``, ``acceleration``, ``angle``, ``time`` or ``number``."""
+    u = canonical_unit(unit)
+    if u is None:
+        raise InputError(f"unknown unit {unit!r}", field="unit")
+    return _UNITS[u][2]
+
+
 _NUM = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?|[-+]?(?:nan|inf|infinity)"
 _SCALAR_RE = re.compile(
     rf"^\s*(?P<num>{_NUM})\s*(?P<unit>m/s²|m/s\^2|m/s2|m/s|km/h|cm|mm|km|m|meters?|metres?|°|"
@@ -458,13 +483,9 @@ def format_trajectory(segments, *, move_decimals: int = 1) -> str:
     return ", then ".join(parts)
 
 
-def is_numeric(v: Value) -> bool:
-    return isinstance(v, (Scalar, Pose, Box))
-
-
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
     "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
     "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "adaptive_decimals", "NO_MOVEMENT",
-    "RELATION_LABELS",
+    "RELATION_LABELS", "canonical_unit", "si_factor", "unit_dimension",
 ]

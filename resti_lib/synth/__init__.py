@@ -39,7 +39,7 @@ from . import scannet as _scannet
 from . import waymo as _waymo
 from .common import dumps, stable_seed, write_json, write_parquet
 
-GENERATOR_VERSION = "1.0.0"
+GENERATOR_VERSION = "1.1.0"
 
 LEGACY_COLUMNS = (
     "Video",
@@ -318,7 +318,7 @@ def generate(
     *,
     seed: int = 0,
     scale: int | None = None,
-    omni6d_camera_convention: str = "world_from_camera",
+    omni6d_camera_convention: str = "identity",
     resti_v5_dir: str | Path | None = None,
 ) -> dict:
     """Generate the mini-world and its legacy benchmark.
@@ -334,8 +334,10 @@ def generate(
         ``None``: the small default world. ``N >= 1``: N copies of the full legacy structure
         (2,064 rows each) taken from the ReSTI v5 Legacy Row Keys (fallback: per-task counts), over
         the same bounded pool of sequences.
-    omni6d_camera_convention : {"world_from_camera", "camera_from_world"}
-        Direction of the camera pose written in ROPE meta files (recorded in world.json).
+    omni6d_camera_convention : {"identity", "world_from_camera", "camera_from_world"}
+        How ROPE meta files store the camera pose (recorded in world.json). ``identity`` (default):
+        the real ROPE way, identity camera pose and zero world translations (the motion is in the
+        objects' camera-frame poses only); the others: a SOPE-style stored pose carrying the motion.
     resti_v5_dir : path, optional
         Where to find ``resti.jsonl``/``excluded.jsonl`` for ``scale`` (default: shared data).
 
@@ -384,6 +386,16 @@ def generate(
             "scannet_pose": "T_raw<-cam (camera-to-world), float32 in .sens; invalid frames all -inf",
             "scannet_axis_alignment": "T_ann<-raw, rotation about +Z plus translation",
             "omni6d_camera_pose": omni6d_camera_convention,
+            "omni6d_frames": "written the real ROPE way: camera pose identity, world_translation zero, "
+            "object poses T_cam<-object in OpenCV axes; the camera motion is only in the static objects' poses"
+            if omni6d_camera_convention == "identity" else "SOPE-style: the stored camera pose and the objects' "
+            "world poses carry the motion",
+            "omni6d_moving_object": f"scene {_omni6d.MOVING_SCENE}: its last object is re-placed during the video "
+            "(world.json sequences.omni6d[].moving_object)",
+            "scannet_boxes": "instances are upright boxes (some turned about +Z in the annotation frame); the "
+            "truth box is the tight upright box of the written vertices (footprint = minimum-area rectangle, "
+            "length >= width, yaw in (-90, 90]); legacy ScanNet dimensions, distances and grounding sizes use "
+            "the axis-aligned box in the annotation frame (extents along ann x, y, z)",
             "omni6d_object_pose": "T_cam<-object in OpenCV axes; box centred at the object origin, "
             "sides = scale * dimensions along object x, y, z",
             "waymo_time": "t = (micros - first vehicle_pose micros) / 1e6; questions use the nearest frame",
