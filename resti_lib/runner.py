@@ -16,12 +16,9 @@ from pathlib import Path
 import yaml
 
 from . import paths
+from .errors import InputError, NotebookError
 
 KERNEL = "python3"
-
-
-class NotebookError(RuntimeError):
-    """A notebook failed: names the notebook, the cell (index and first line) and the error."""
 
 
 @dataclass
