@@ -111,7 +111,7 @@ def owner_problem(target: Path, kind: str) -> str | None:
 def input_problem(target: Path, inputs) -> str | None:
     """Why ``target`` collides with an input (it is one, holds one, or lies inside one)."""
     for inp in inputs:
-        if inp is None:
+        if inp is None or not os.path.lexists(inp):
             continue
         i = _real(inp)
         if i == target:
