@@ -45,6 +45,10 @@ _DEFECTS = [
            "the question does not state the unit of the answer"),
     Defect("statistic_unnamed", "question", "unnamed statistic",
            "a rate question names 'average speed' but the value is displacement / time"),
+    Defect("duplicate_row", "question", "structural",
+           "the legacy row is an exact copy of another row of the benchmark (every field equal)"),
+    Defect("time_past_video_end", "question", "structural",
+           "an asked time lies after the end of the video (the last source sample plus one interval)"),
     # source layer
     Defect("grounding_alignment_omitted", "source", "source geometry",
            "camera-frame box computed as P(t)^-1 c_ann (axis alignment omitted)"),
@@ -93,6 +97,8 @@ REASONS: dict[str, str] = {
     "undefined_dimension": "the asked dimension has no convention for this object",
     "invalid_pose_at_time": "the source pose is invalid at the asked time",
     "malformed_row": "the legacy row cannot be parsed",
+    "duplicate_row": "an exact copy of an earlier legacy row, which is kept and audited once",
+    "time_past_video_end": "an asked time lies after the end of the video",
     "unsupported_question": "the question does not match a known contract for the task",
 }
 
