@@ -25,9 +25,10 @@ def _cmd_verify(a) -> int:
 
 def attack_rows(rel) -> tuple[list[dict], dict]:
     """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
-    a schema problem, a candidate that does not parse, an answer that is not a letter)."""
+    a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
+    is not finite or not physically possible)."""
     from . import LETTERS
-    from .options.checks import parse_row
+    from .options.checks import ROW_CHECKS, parse_row
 
     bad: dict = {}
     for p in rel.problems:
@@ -45,6 +46,8 @@ def attack_rows(rel) -> tuple[list[dict], dict]:
             bad[rid] = f"Candidates: letters {sorted(pr.candidates)}, expected A-E"
         elif pr.answer not in LETTERS:
             bad[rid] = f"Answer: {pr.answer!r} is not a letter A-E"
+        elif msg := ROW_CHECKS["finite_values"](pr) or ROW_CHECKS["value_ranges"](pr):
+            bad[rid] = msg
         else:
             usable.append(r)
     return usable, bad

@@ -14,7 +14,7 @@ OutputError          an output folder is refused (not a resti output, or an inpu
 BusyError            another resti process holds the output folder (lock)
 NotebookError        a notebook failed (names the notebook and the cell)
 InvariantError       a release invariant failed (rows lost or duplicated, verify failing)
-ReoptionError        a release could not be re-optioned, or its input is damaged
+ReoptionError        a release could not be re-optioned (the rebuilt release fails verify)
 OptionError          five valid candidates cannot be built for a row
 ==================== =====================================================================
 """
@@ -88,8 +88,7 @@ class InvariantError(RestiError, RuntimeError):
 
 
 class ReoptionError(RestiError, RuntimeError):
-    """The rebuilt release could not be made, its input is damaged, or it fails verification
-    (nothing is published)."""
+    """The rebuilt release could not be made or fails verification (nothing is published)."""
 
 
 class OptionError(RestiError, RuntimeError):

@@ -2,7 +2,8 @@
 
 ``resti run`` holds ``<output_dir>/.resti.lock`` for the whole run; every folder that is published
 (:mod:`resti_lib.publish`: a release, a rebuilt release, the mini-world) is written under
-``<parent>/.<name>.lock``. A second process that finds the lock held gets a :class:`BusyError`
+``<parent>/.<name>.lock``. The holder removes the lock file when it is done (a killed holder leaves
+an unlocked file behind, which the next process simply locks). A second process that finds the lock held gets a :class:`BusyError`
 naming the holder (pid, command, start time), or waits when asked to. The kernel releases the lock
 when its holder exits, also when it is killed, so a crashed run never leaves a stale lock.
 
@@ -85,20 +86,8 @@ def hold(lock_path: str | os.PathLike, *, what: str, wait: bool = False, timeout
             with _GUARD:
                 _HELD[key][1] -= 1
         return
-    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), default_mode())
+    fd = _acquire(lock_path, what=what, wait=wait, timeout=timeout, poll=poll)
     try:
-        if not _try_lock(fd):
-            holder = _holder(lock_path)
-            if not wait:
-                raise BusyError(f"{what} is being written by {holder}; wait for it to finish or use another "
-                                "folder", file=lock_path.parent)
-            print(f"resti: waiting for {what} (held by {holder}) ...", file=sys.stderr)
-            t0 = time.monotonic()
-            while not _try_lock(fd):
-                if timeout is not None and time.monotonic() - t0 > timeout:
-                    raise BusyError(f"{what} is still being written by {holder} after {timeout:.0f} s",
-                                    file=lock_path.parent)
-                time.sleep(poll)
         info = {"pid": os.getpid(), "argv": sys.argv[:6], "started": time.strftime("%Y-%m-%d %H:%M:%S")}
         os.ftruncate(fd, 0)
         os.pwrite(fd, (json.dumps(info) + "\n").encode("utf-8"), 0)
@@ -109,9 +98,51 @@ def hold(lock_path: str | os.PathLike, *, what: str, wait: bool = False, timeout
         finally:
             with _GUARD:
                 del _HELD[key]
+            # removed while still locked: a process that opened the old file re-checks and retries
+            try:
+                os.unlink(lock_path)
+            except OSError:
+                pass
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
+def _acquire(lock_path: Path, *, what: str, wait: bool, timeout: float | None, poll: float) -> int:
+    """An open, locked descriptor of ``lock_path`` (the file still at that path once locked)."""
+    t0 = time.monotonic()
+    told = False
+    while True:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), default_mode())
+        try:
+            if _try_lock(fd):
+                if _same_file(fd, lock_path):
+                    return fd
+                os.close(fd)  # the holder removed it as we locked: lock the new one
+                continue
+            holder = _holder(lock_path)
+            if not wait:
+                raise BusyError(f"{what} is being written by {holder}; wait for it to finish or use another "
+                                "folder", file=lock_path.parent)
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                raise BusyError(f"{what} is still being written by {holder} after {timeout:.0f} s",
+                                file=lock_path.parent)
+            if not told:
+                print(f"resti: waiting for {what} (held by {holder}) ...", file=sys.stderr)
+                told = True
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+        time.sleep(poll)
 
 
 def folder_lock(folder: str | os.PathLike, *, what: str | None = None, wait: bool = False,

@@ -777,7 +777,8 @@ class ReoptionResult:
 
 
 def check_input(rel) -> None:
-    """Refuse a damaged input release, naming the failing check (:class:`ReoptionError`).
+    """Refuse a damaged input release, naming the failing check (:class:`InputError` whose
+    ``field`` is the check).
 
     The input must carry its integrity records and match them: ``release.json`` with row counts
     (accepted, excluded, original) equal to the rows and exclusions present, digests
@@ -789,21 +790,21 @@ def check_input(rel) -> None:
 
     where = rel.root
     if rel.meta is None:
-        raise ReoptionError("the input release has no release.json: its row counts cannot be checked, so "
-                            "damage (cut rows, lost exclusions) would go unnoticed", file=where,
-                            field="release.json")
+        raise InputError("the input release has no release.json: its row counts cannot be checked, so "
+                         "damage (cut rows, lost exclusions) would go unnoticed; nothing was written",
+                         file=where, field="release_json")
     checks = integrity_checks(rel)
     if checks["sha256"]["status"] == "skipped":
-        raise ReoptionError("the input release has no digests (SHA256SUMS or release.json artifacts): "
-                            "damage would go unnoticed", file=where, field="SHA256SUMS")
+        raise InputError("the input release has no digests (SHA256SUMS or release.json artifacts): "
+                         "damage would go unnoticed; nothing was written", file=where, field="sha256")
     failing = {k: c for k, c in checks.items() if c["status"] == "fail"}
     if failing:
         name, c = next(iter(failing.items()))
         msgs = "; ".join(f"{k}: {v}" for k, v in list((c.get("messages") or {}).items())[:3]) \
             or ", ".join(c["failing"][:3])
         others = f" (also failing: {', '.join(list(failing)[1:])})" if len(failing) > 1 else ""
-        raise ReoptionError(f"the input release is damaged; check {name!r} fails: {msgs}{others}; "
-                            "nothing was written", file=where, field=name)
+        raise InputError(f"the input release is damaged; check {name!r} fails: {msgs}{others}; "
+                         "nothing was written", file=where, field=name)
 
 
 def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str | os.PathLike = "outputs/reoption",
