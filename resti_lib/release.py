@@ -97,21 +97,31 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
     return buf.getvalue()
 
 
-def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
+def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: str = "task") -> dict:
+    """The row counts every ``release.json`` carries (``counts``, accepted by source and by task,
+    exclusions by task, answer letters), computed once for both layouts (:func:`release_meta` and
+    :func:`resti_lib.reoption.release_meta`). ``excluded_order``: ``task`` (the order of
+    :data:`resti_lib.TASKS`) or ``name``."""
     by_task = Counter(r["Task"] for r in accepted)
     by_source = Counter(r["Source"] for r in accepted)
-    ex_task = Counter(r["task"] for r in excluded)
+    ex_task = Counter(r.get("task") for r in excluded)
     letters = Counter(r["Answer"] for r in accepted)
     order = {t: i for i, t in enumerate(TASKS)}
+    ex_items = sorted(ex_task.items(), key=lambda kv: order.get(kv[0], 99)) if excluded_order == "task" \
+        else sorted(ex_task.items())
     return {
-        "name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
         "counts": {"accepted": len(accepted), "excluded": len(excluded), "original": len(accepted) + len(excluded)},
         "accepted_by_source": dict(sorted(by_source.items())),
         "accepted_by_task": dict(sorted(by_task.items())),
-        "excluded_by_task": dict(sorted(ex_task.items(), key=lambda kv: order.get(kv[0], 99))),
-        "answer_letters": {k: letters.get(k, 0) for k in LETTERS},
-        "artifacts": artifacts,
+        "excluded_by_task": dict(ex_items),
+        "answer_letters": {k: int(letters.get(k, 0)) for k in LETTERS},
     }
+
+
+def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
+    """The ``release.json`` object of an assembled release."""
+    return {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
+            **count_fields(accepted, excluded), "artifacts": artifacts}
 
 
 # ------------------------------------------------------------------------------ the release writer

@@ -737,13 +737,13 @@ def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None
 
 def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, source_meta: dict | None,
                  source_digests: dict, seed: int, options: dict) -> dict:
-    """The ``release.json`` object (no dates or paths, so the same input gives the same bytes)."""
-    by_task = Counter(r["Task"] for r in rows)
-    by_source = Counter(r["Source"] for r in rows)
-    exc_task = Counter(r.get("task") for r in excluded)
-    letters = Counter(r["Answer"] for r in rows)
-    by_task_letter = {t: {L: int(c) for L, c in sorted(Counter(r["Answer"] for r in rows if r["Task"] == t).items())}
-                      for t in sorted(by_task)}
+    """The ``release.json`` object (no dates or paths, so the same input gives the same bytes); the
+    row counts come from :func:`resti_lib.release.count_fields`, as in an assembled release."""
+    from .release import count_fields
+
+    c = count_fields(rows, excluded, excluded_order="name")
+    by_task_letter = {t: {L: int(n) for L, n in sorted(Counter(r["Answer"] for r in rows if r["Task"] == t).items())}
+                      for t in c["accepted_by_task"]}
     sm = source_meta or {}
     return {
         "name": sm.get("name", "ReSTI"),
@@ -754,13 +754,13 @@ def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, sou
                      "preserved": "row order and every field except Candidates and Answer; the keyed "
                                   "candidate is the Answer Detail string"},
         "artifacts": artifacts,
-        "counts": {"accepted": len(rows), "excluded": len(excluded), "original": len(rows) + len(excluded)},
-        "accepted_by_source": dict(sorted(by_source.items())),
-        "accepted_by_task": dict(sorted(by_task.items())),
+        "counts": c["counts"],
+        "accepted_by_source": c["accepted_by_source"],
+        "accepted_by_task": c["accepted_by_task"],
         "accepted_by_task_source": {f"{t}|{s}": int(n) for (t, s), n in
                                     sorted(Counter((r["Task"], r["Source"]) for r in rows).items())},
-        "excluded_by_task": dict(sorted(exc_task.items())),
-        "answer_letters": {L: int(letters.get(L, 0)) for L in LETTERS},
+        "excluded_by_task": c["excluded_by_task"],
+        "answer_letters": c["answer_letters"],
         "answer_letters_by_task": by_task_letter,
     }
 
