@@ -247,13 +247,19 @@ def test_lock_is_reentrant_within_a_process(tmp_path):
 
 # ------------------------------------------------------------------------------- the mini-world
 
-def test_generate_never_leaves_half_a_world(miniworld, tmp_path, monkeypatch):
-    import shutil
+def _old_world(w: Path) -> Path:
+    """A previous world (its files stand for a full one: only their survival is checked)."""
+    (w / "legacy").mkdir(parents=True)
+    (w / "legacy" / "qa.parquet").write_bytes(b"the previous legacy benchmark")
+    (w / "world.json").write_text(json.dumps({"generator": "resti_lib.synth", "seed": 0}))
+    (w / MARKER).write_bytes(publish.marker_bytes("world"))
+    return w
 
+
+def test_generate_never_leaves_half_a_world(tmp_path, monkeypatch):
     from resti_lib import synth
 
-    w = tmp_path / "w"
-    shutil.copytree(miniworld, w)
+    w = _old_world(tmp_path / "w")
     before = _tree(w)
 
     def boom(*a, **k):
@@ -277,13 +283,10 @@ def test_generate_refuses_a_folder_that_is_not_a_world(tmp_path):
     assert [p.name for p in d.iterdir()] == ["keep.txt"]
 
 
-def test_killed_generation_keeps_the_previous_world(miniworld, tmp_path):
+def test_killed_generation_keeps_the_previous_world(tmp_path):
     """A real kill (SIGKILL) while the new world is being written: the old one is untouched, and
     the next start removes the half-written staging folder."""
-    import shutil
-
-    w = tmp_path / "w"
-    shutil.copytree(miniworld, w)
+    w = _old_world(tmp_path / "w")
     before = _tree(w)
     code = f"from resti_lib.synth import generate\ngenerate({str(w)!r}, seed=5)\n"
     p = subprocess.Popen([sys.executable, "-c", code])
@@ -301,3 +304,25 @@ def test_killed_generation_keeps_the_previous_world(miniworld, tmp_path):
         recover(w)
     assert not list(tmp_path.glob(".w.tmp-*"))  # ... until the next start
     assert _tree(w) == before
+
+
+def test_a_run_waits_for_the_world_being_generated(tmp_path):
+    """The second run needing the mini-world waits while another process holds it, then uses the
+    world that process made (it does not generate a second one)."""
+    from resti_lib.pipeline import _generator_stamp, ensure_world
+
+    w = tmp_path / "world"
+    (w / "legacy").mkdir(parents=True)
+    (w / "legacy" / "qa.parquet").write_bytes(b"made by the other run")
+    (w / "world.json").write_text(json.dumps({"generator": "resti_lib.synth"}))
+    (w / ".generator_stamp").write_text(_generator_stamp(0))
+    before = _tree(w)
+    holder = _holder(lock_file_for(w), seconds=1.5)
+    try:
+        t0 = time.monotonic()
+        assert ensure_world({"world_dir": str(w), "world_seed": 0}) == w
+        waited = time.monotonic() - t0
+    finally:
+        holder.kill()
+        holder.wait()
+    assert waited > 0.5 and _tree(w) == before
