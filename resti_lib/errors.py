@@ -95,5 +95,5 @@ class OptionError(RestiError, RuntimeError):
     """Five valid candidates cannot be built for a row under the constraints."""
 
 
-__all__ = ["RestiError", "InputError", "ContractError", "OutputError", "BusyError", "NotebookError",
-           "InvariantError", "ReoptionError", "OptionError"]
+__all__ = ["BusyError", "ContractError", "InputError", "InvariantError", "NotebookError", "OptionError",
+           "OutputError", "ReoptionError", "RestiError"]

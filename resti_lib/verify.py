@@ -24,7 +24,7 @@ from pathlib import Path
 from . import LETTERS, TASKS
 from .errors import InputError
 from .io.benchmark import Problem, Release, load_release
-from .io.files import decode_text, file_kind, read_bytes, sha256_file  # noqa: F401  (sha256_file re-exported)
+from .io.files import decode_text, file_kind, read_bytes, sha256_file
 from .options.checks import ROW_CHECKS, parse_row
 
 MAX_LISTED = 200  # failing ids listed per check (the count is always complete)

@@ -117,7 +117,7 @@ def test_bad_ids_duplicates_and_late_times(miniworld, legacy_copy, tmp_path):
     scene2 = df.loc[last, "Video"].removesuffix(".mp4")
     df.loc[last, "time_end"] = (frames[scene2][0] - 1) / frames[scene2][1]
     df.to_parquet(qa)
-    runs, v, prov, exc, acc = _run_all(world, qa, tmp_path, tasks)
+    _, v, prov, exc, acc = _run_all(world, qa, tmp_path, tasks)
     assert v["passed"] and len(acc) + len(exc) == n + 2
     # the ID: a malformed row, excluded with the field named
     assert prov.loc[bad_id, "verdict"] == "excluded"

@@ -74,20 +74,18 @@ def test_release_writer_refuses_foreign_folder_and_other_kinds(tmp_path):
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
-    with pytest.raises(OutputError, match="not written by resti"):
-        with publishing(foreign, kind="release"):
-            pass
+    with pytest.raises(OutputError, match="not written by resti"), publishing(foreign, kind="release"):
+        pass
     world = tmp_path / "world"
     with publishing(world, kind="world") as st:
         (st / "world.json").write_text("{}")
-    with pytest.raises(OutputError, match="resti world folder, not a release folder"):
-        with publishing(world, kind="release"):
-            pass
+    with pytest.raises(OutputError, match="resti world folder, not a release folder"), \
+            publishing(world, kind="release"):
+        pass
     afile = tmp_path / "a_file"
     afile.write_text("x")
-    with pytest.raises(OutputError, match="not a folder"):
-        with publishing(afile, kind="release"):
-            pass
+    with pytest.raises(OutputError, match="not a folder"), publishing(afile, kind="release"):
+        pass
     assert (foreign / "notes.txt").read_text() == "mine" and afile.read_text() == "x"
 
 
@@ -206,9 +204,8 @@ def test_second_writer_of_a_folder_exits_with_a_message(release, tmp_path, capsy
         err = capsys.readouterr().err
         assert rc == 3 and f"pid {holder.pid}" in err and len(err.strip().splitlines()) == 1
         assert not out.exists()
-        with pytest.raises(BusyError, match="still being written"):
-            with folder_lock(out, wait=True, timeout=0.5):
-                pass
+        with pytest.raises(BusyError, match="still being written"), folder_lock(out, wait=True, timeout=0.5):
+            pass
     finally:
         holder.kill()
         holder.wait()

@@ -24,7 +24,7 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from ..errors import InputError
-from .files import atomic_write_bytes, open_regular, parse_json, read_json_object, read_jsonl  # noqa: F401
+from .files import atomic_write_bytes, open_regular, parse_json, read_json_object, read_jsonl
 
 LEGACY_COLUMNS = ("Video", "Source", "Task", "QType", "Question", "Prompt", "time_start", "time_end",
                   "Candidates", "Answer", "Answer Detail", "ID", "scene")
@@ -195,7 +195,7 @@ def read_parquet_file(path: Path) -> pd.DataFrame:
     with open_regular(path) as f:
         try:
             return pd.read_parquet(f)
-        except Exception as e:  # pyarrow raises several types for a damaged file
+        except Exception as e:  # noqa: BLE001 -- pyarrow raises several types for a damaged file
             msg = " ".join(str(e).split())
             raise InputError(f"cannot read parquet ({msg})", file=path) from None
 
@@ -371,10 +371,9 @@ def _read_meta(meta_file: Path, strict: bool) -> tuple[dict | None, str | None]:
             raise
         return None, e.message
     counts = meta.get("counts")
-    if counts is not None and not isinstance(counts, dict):
-        if strict:
-            raise InputError(f"counts is a JSON {type(counts).__name__}, not an object", file=meta_file,
-                             field="counts")
+    if strict and counts is not None and not isinstance(counts, dict):
+        raise InputError(f"counts is a JSON {type(counts).__name__}, not an object", file=meta_file,
+                         field="counts")
     return meta, None
 
 

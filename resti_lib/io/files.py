@@ -74,8 +74,7 @@ def decode_text(data: bytes, *, file=None, field: str | None = None) -> str:
     """UTF-8 text of ``data``; a leading UTF-8 byte-order mark is dropped."""
     if data.startswith(_UTF16_BOMS):
         raise InputError("is UTF-16 text; resti reads UTF-8 (convert the file to UTF-8)", file=file, field=field)
-    if data.startswith(_UTF8_BOM):
-        data = data[len(_UTF8_BOM):]
+    data = data.removeprefix(_UTF8_BOM)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
