@@ -60,6 +60,9 @@ def _cmd_attack(a) -> int:
 
     rel = load_release(a.path, strict=False)
     records, skipped = attack_rows(rel)
+    if rel.meta_error is not None:
+        print(f"resti attack: input error: file {rel.meta_file}: {rel.meta_error} (the rows are attacked; "
+              "run resti verify)", file=sys.stderr)
     if skipped:
         shown = "; ".join(f"{rid}: {why}" for rid, why in list(skipped.items())[:MAX_SKIPPED_SHOWN])
         more = f" (and {len(skipped) - MAX_SKIPPED_SHOWN} more)" if len(skipped) > MAX_SKIPPED_SHOWN else ""
@@ -79,7 +82,7 @@ def _cmd_attack(a) -> int:
             shown[c] = shown[c].map(lambda x: f"{x:.3f}")
         shown["p_value"] = shown["p_value"].map(lambda x: f"{x:.3g}")
         print(shown.to_markdown(index=False))
-    return EXIT_INPUT if skipped else 0
+    return EXIT_INPUT if skipped or rel.meta_error is not None else 0
 
 
 def _cmd_reoption(a) -> int:

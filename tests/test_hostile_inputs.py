@@ -250,6 +250,18 @@ def test_damaged_release_json(release, tmp_path, fault):
     line = one_line(err)
     assert rc == 2 and ("release.json" in line or "release_json" in line)
     assert not (tmp_path / "out").exists()
+    if fault in ("invalid JSON", "empty", "a list"):  # attack reads the rows, and says the file is damaged
+        rc, out, err = run_cli("attack", release, "--format", "json")
+        assert rc == 2 and str(release / "release.json") in one_line(err) and json.loads(out)
+
+
+def test_empty_folder_and_missing_release(tmp_path):
+    (tmp_path / "empty").mkdir()
+    for cmd in ("verify", "attack"):
+        rc, _, err = run_cli(cmd, tmp_path / "empty")
+        assert rc == 2 and "no resti.jsonl or resti.parquet" in one_line(err)
+        rc, _, err = run_cli(cmd, tmp_path / "absent")
+        assert rc == 2 and "release not found" in one_line(err)
 
 
 def test_sha256sums_line_without_a_file_name(release, tmp_path):
