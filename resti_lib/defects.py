@@ -46,6 +46,10 @@ _DEFECTS = [
     Defect("statistic_unnamed", "question", "unnamed statistic",
            "the question leaves the statistic open ('average speed', 'how far has X traveled') and the "
            "value is the endpoint-displacement reading"),
+    Defect("duplicate_row", "question", "structural",
+           "the legacy row is an exact copy of another row of the benchmark (every field equal)"),
+    Defect("time_past_video_end", "question", "structural",
+           "an asked time lies after the end of the video (the last source sample plus one interval)"),
     # source layer
     Defect("grounding_alignment_omitted", "source", "source geometry",
            "camera-frame box computed as P(t)^-1 c_ann (axis alignment omitted)"),
@@ -96,5 +100,7 @@ REASONS: dict[str, str] = {
     "undefined_dimension": "the asked dimension has no convention for this object",
     "invalid_pose_at_time": "the source pose is invalid at the asked time",
     "malformed_row": "the legacy row cannot be parsed",
+    "duplicate_row": "an exact copy of an earlier legacy row, which is kept and audited once",
+    "time_past_video_end": "an asked time lies after the end of the video",
     "unsupported_question": "the question does not match a known contract for the task",
 }

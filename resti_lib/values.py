@@ -264,6 +264,10 @@ def _parse_json(text: str, where: dict) -> Value:
         obj = json.loads(text)
     except json.JSONDecodeError as e:
         raise _err(f"malformed JSON value ({e.msg} at char {e.pos}): {text[:80]!r}", where) from None
+    except RecursionError:
+        raise _err(f"JSON value nested too deeply: {text[:40]!r}...", where) from None
+    except ValueError as e:  # e.g. an integer literal longer than Python converts
+        raise _err(f"malformed JSON value ({e}): {text[:40]!r}", where) from None
     if not isinstance(obj, dict):
         raise _err(f"JSON value is not an object: {text[:80]!r}", where)
     dec = max((_decimals(m) for m in re.findall(r"-?\d+\.\d+", text)), default=0)
@@ -273,7 +277,7 @@ def _parse_json(text: str, where: dict) -> Value:
             raise _err(f"pose JSON lacks keys {missing}", where)
         try:
             vals = [float(obj[k]) for k in POSE_KEYS]
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise _err("pose JSON has a non-numeric entry", where) from None
         R = (tuple(vals[3:6]), tuple(vals[6:9]), tuple(vals[9:12]))
         return Pose(t=tuple(vals[:3]), R=R, text=text, decimals=dec, compact='", "' not in text
@@ -286,7 +290,7 @@ def _parse_json(text: str, where: dict) -> Value:
             R = tuple(tuple(float(x) for x in r) for r in R) if R is not None else None
             h = obj.get("C_heading")
             h = float(h) if h is not None else None
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise _err(f"grounding JSON malformed ({e!r})", where) from None
         if len(c) != 3 or len(lwh) != 3 or (R is not None and (len(R) != 3 or any(len(r) != 3 for r in R))):
             raise _err("grounding JSON has wrong shapes (centre 3, lwh 3, rotation 3x3)", where)
@@ -328,8 +332,11 @@ def parse(text: object, *, file=None, row=None, field=None) -> Value:
     if text is None or (isinstance(text, float) and math.isnan(text)):
         raise _err("value is missing (null)", where)
     if not isinstance(text, str):
-        if isinstance(text, (int, float)):
-            return Scalar(value=float(text), unit="", text=str(text), decimals=_decimals(str(text)))
+        if isinstance(text, (int, float)) and not isinstance(text, bool):
+            try:
+                return Scalar(value=float(text), unit="", text=str(text), decimals=_decimals(str(text)))
+            except (OverflowError, ValueError):
+                raise _err(f"number {str(text)[:40]} is out of range", where) from None
         raise _err(f"value is a {type(text).__name__}, expected a string", where)
     s = text.strip()
     if not s:

@@ -60,6 +60,29 @@ VERDICT_REASON = ("the legacy question names no plane or convention; the value i
                   "heading change of the optical axis")
 
 
+# ==================================================================================== tracks
+
+
+class Tracks:
+    """A camera's tracks for the heading operators.
+
+    Attributes
+    ----------
+    cv : PoseTrack  ``T_world<-cam`` in OpenCV axes (optical forward ``+Z``).
+    src : PoseTrack  the same poses in the source's own camera axes (ScanNet OpenCV; Waymo +X
+        forward, +Z up), which the legacy operator used.
+    up : world-up unit vector in the track's world.
+    forward : optical-forward axis in the OpenCV camera frame (``(0, 0, 1)``).
+    world, axes_note : words for the evidence.
+    """
+
+    def __init__(self, cv: PoseTrack, src: PoseTrack, up, world: str, axes_note: str, files: list):
+        self.cv, self.src = cv, src
+        self.up = tuple(float(x) for x in up)
+        self.forward = (0.0, 0.0, 1.0)
+        self.world, self.axes_note, self.files = world, axes_note, files
+
+
 def camera_tracks(ctx: SourceContext, source: str, sequence: str, camera: int | None, p: dict) -> Tracks:
     """The camera tracks of a sequence (see :class:`Tracks`)."""
     if source == "ScanNet":

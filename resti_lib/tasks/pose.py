@@ -187,8 +187,12 @@ def resolve_premise(track: PoseTrack, premise: dict | None, candidates: list[flo
         if r <= tol + 1e-12:
             return {"time": c, "how": "stated" if c == cands[0] else "time_start", "residual": r,
                     "reproduced": True, "tried": tried}
-    s = timestamp_search(track, P.matrix, cands[0], decimals=decimals, abs_tol=abs_tol, rule=rule) \
-        if np.isfinite(cands[0]) else None
+    try:  # the search compares against the asked sample, which may be invalid (failed tracking)
+        s = timestamp_search(track, P.matrix, cands[0], decimals=decimals, abs_tol=abs_tol, rule=rule) \
+            if np.isfinite(cands[0]) else None
+    except ContractError as e:
+        s = None
+        tried.append({"t": cands[0], "search_error": str(e)})
     if s is not None and s["best_residual"] <= tol + 1e-12:
         return {"time": s["best_t"], "how": "search", "residual": s["best_residual"], "reproduced": True,
                 "tried": tried}
