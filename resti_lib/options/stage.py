@@ -49,18 +49,13 @@ from scipy.spatial.transform import Rotation
 
 from .. import LETTERS
 from .. import values as V
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
 from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
 from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_option_params, per_source, pose_floors,
                    pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
 
 WINDOWED = ("displacement", "path_length", "trajectory")
-
-
-class OptionError(RuntimeError):
-    """A row's candidates could not be built under the constraints (it is then excluded, or the
-    rebuild of a release stops)."""
 
 ONE_D = ("scalar", "angle", "trajectory")
 
