@@ -28,8 +28,9 @@ import pandas as pd
 
 def one(task, params):
     t = time.perf_counter()
-    run_task(task, params)
-    return task, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    run = run_task(task, params)
+    return (task, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            run.result.option_seconds)
 
 if __name__ == "__main__":
     w = Path(sys.argv[1])
@@ -49,8 +50,9 @@ if __name__ == "__main__":
     print(json.dumps({"rows": v["total_rows"], "audit_s": dt, "tasks_s": t1 - t0, "release_s": dt - (t1 - t0),
                       "accepted": v["accepted_rows"], "excluded": v["excluded_rows"],
                       "maxrss_mb": max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                                       max(m for _, _, m in per_task)),
-                      "per_task": {t: [round(s, 1), round(m)] for t, s, m in per_task}}))
+                                       max(m for _, _, m, _ in per_task)),
+                      "options_s": sum(o for _, _, _, o in per_task),
+                      "per_task": {t: [round(s, 1), round(m), round(o, 1)] for t, s, m, o in per_task}}))
 """
 
 
@@ -81,8 +83,10 @@ def main(argv: list[str] | None = None) -> None:
     for r in res:
         print(f"{r['scale']:5d} {r['rows']:7d} {r['generate_s']:9.1f}s {r['tasks_s']:6.1f}s {r['release_s']:7.1f}s "
               f"{r['rows'] / r['audit_s']:8.0f} {r['maxrss_mb']:9.0f}   {r['accepted']}/{r['excluded']}")
-        print("        per task (s, peak MB): " + ", ".join(f"{t.split()[0]} {v[0]}/{v[1]}"
-                                                         for t, v in r["per_task"].items()))
+        print("        per task (s, peak MB, option stage s): " + ", ".join(
+            f"{t.split()[0]} {v[0]}/{v[1]}/{v[2]}" for t, v in r["per_task"].items()))
+        print(f"        option stage: {r['options_s']:.1f} s of {sum(v[0] for v in r['per_task'].values()):.1f} s "
+              f"of task processing ({r['options_s'] / max(1e-9, sum(v[0] for v in r['per_task'].values())):.0%})")
     if len(res) > 1:
         a, b = res[0], res[-1]
         per_a, per_b = a["audit_s"] / a["rows"], b["audit_s"] / b["rows"]

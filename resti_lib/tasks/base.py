@@ -31,6 +31,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -305,6 +306,7 @@ class TaskResult:
     accepted: list
     excluded: list
     provenance: pd.DataFrame
+    option_seconds: float = 0.0  # time spent in the option stage (reported by the scale benchmark)
 
 
 def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option_params: dict | None = None
@@ -339,8 +341,10 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
             "time_start": float(o.time_start), "time_end": float(o.time_end), "Candidates": {}, "Answer": None,
             "Answer Detail": detail, "ID": int(legacy_row["ID"]), "scene": SCENE_OF_SOURCE[o.source],
             "ReSTI ID": rid, "Legacy Row Key": o.key})
+    t_opt = time.perf_counter()
     built, ev, failed = build_options(rows, seed=seed, params=load_option_params(option_params), extras=extras,
                                       on_failure="skip")
+    t_opt = time.perf_counter() - t_opt
     for rid, problem in failed.items():
         index[rid].exclude("no_valid_options", option_error=problem)
     opt_ev = {r["rid"]: {k: v for k, v in r.items() if k not in ("rid", "task", "source") and v == v}
@@ -371,7 +375,7 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
             "legacy_detail": o.legacy_detail, "new_detail": new_detail,
             "option_spec": _json(o.option_spec) if o.option_spec is not None and o.verdict != "excluded" else None,
         })
-    return TaskResult(accepted, excluded, pd.DataFrame(prov))
+    return TaskResult(accepted, excluded, pd.DataFrame(prov), t_opt)
 
 
 def write_task_outputs(result: TaskResult, out_dir: str | Path) -> dict:
