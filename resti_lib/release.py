@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import LETTERS, TASKS, __version__
+from . import LETTERS, TASKS, __version__, paths
 from .io.benchmark import jsonl_text, load_legacy, load_release, rows_to_parquet_bytes
 from .tasks.base import slug
 from .verify import sha256_file, verify_release
@@ -96,13 +96,16 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
     return buf.getvalue()
 
 
-def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
+def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None
+                 ) -> dict:
+    """``release.json``: counts, answer letters, artifacts and (``context``) the run that made it
+    (:func:`resti_lib.runinfo.run_context`: input, params digest, code and package versions)."""
     by_task = Counter(r["Task"] for r in accepted)
     by_source = Counter(r["Source"] for r in accepted)
     ex_task = Counter(r["task"] for r in excluded)
     letters = Counter(r["Answer"] for r in accepted)
     order = {t: i for i, t in enumerate(TASKS)}
-    return {
+    meta = {
         "name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
         "counts": {"accepted": len(accepted), "excluded": len(excluded), "original": len(accepted) + len(excluded)},
         "accepted_by_source": dict(sorted(by_source.items())),
@@ -111,6 +114,9 @@ def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) ->
         "answer_letters": {k: letters.get(k, 0) for k in LETTERS},
         "artifacts": artifacts,
     }
+    if context:
+        meta["run"] = context
+    return meta
 
 
 def _swap_in(tmp: Path, target: Path) -> None:
@@ -150,7 +156,8 @@ def rebuild_options(accepted: list[dict], *, seed: int = 0, options: dict | None
 
 
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, options: str = "population", seed: int = 0) -> dict:
+                  out_dir: str | Path, *, options: str = "population", seed: int = 0,
+                  context: dict | None = None) -> dict:
     """Write the release atomically; returns the validation object.
 
     ``options``: ``population`` rebuilds the options at release level (:func:`rebuild_options`);
@@ -169,12 +176,14 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.tmp-"))
+    os.chmod(tmp, paths.dir_mode())  # mkdtemp creates 0700; the release honours the umask
     try:
         (tmp / "resti.jsonl").write_bytes(jsonl_text(accepted).encode("utf-8"))
         (tmp / "resti.parquet").write_bytes(rows_to_parquet_bytes(accepted))
         (tmp / "excluded.jsonl").write_bytes(jsonl_text(excluded, sort_keys=True).encode("utf-8"))
         (tmp / "provenance.parquet").write_bytes(_parquet_bytes(provenance.reset_index(drop=True)))
         rel = load_release(tmp, strict=False)
+        rel.meta = release_meta(accepted, excluded, {}, context=context)  # the counts release.json states
         validation = verify_release(rel, legacy_keys=list(legacy["Legacy Row Key"]))
         (tmp / "validation.json").write_bytes((json.dumps(validation, indent=2, ensure_ascii=False) + "\n")
                                               .encode("utf-8"))
@@ -183,7 +192,7 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
             raise InvariantError(f"the assembled release fails verify: {failed}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
         artifacts = {n: {"bytes": (tmp / n).stat().st_size, "sha256": sha256_file(tmp / n)} for n in names}
-        meta = release_meta(accepted, excluded, artifacts)
+        meta = release_meta(accepted, excluded, artifacts, context=context)
         (tmp / "release.json").write_bytes((json.dumps(meta, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
         sums = "".join(f"{sha256_file(tmp / n)}  {n}\n" for n in names + ["release.json"])
         (tmp / "SHA256SUMS").write_bytes(sums.encode("utf-8"))
@@ -195,11 +204,12 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
 
 
 def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path, *, options: str = "population",
-             seed: int = 0) -> dict:
+             seed: int = 0, context: dict | None = None) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
-    return write_release(accepted, excluded, provenance, legacy, out_dir, options=options, seed=seed)
+    return write_release(accepted, excluded, provenance, legacy, out_dir, options=options, seed=seed,
+                         context=context)
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:
