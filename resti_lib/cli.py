@@ -207,10 +207,13 @@ def main(argv: list[str] | None = None) -> int:
             cmd = "resti measure"
             from .measure import measure_main
 
-            return measure_main(_measure_argv(argv[1:]))
-        args = build_parser(full_help=bool({"-h", "--help"} & set(argv))).parse_args(argv)
-        cmd = f"resti {args.cmd}"
-        return args.fn(args)
+            rc = measure_main(_measure_argv(argv[1:]))
+        else:
+            args = build_parser(full_help=bool({"-h", "--help"} & set(argv))).parse_args(argv)
+            cmd = f"resti {args.cmd}"
+            rc = args.fn(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return rc
     except InputError as e:
         print(f"{cmd}: input error: {e}", file=sys.stderr)
         return 2

@@ -26,7 +26,7 @@ from .tables import percent, to_html
 CSS = """
 *{box-sizing:border-box}
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1180px;margin:0 auto;
-padding:1em 1.2em 3em;color:#222;line-height:1.45;overflow-wrap:anywhere}
+padding:1em 1.2em 3em;color:#222;line-height:1.45;overflow-wrap:break-word}
 h1{font-size:1.7em;margin:.3em 0}h2{font-size:1.3em;margin-top:2em;border-bottom:1px solid #ddd}
 h3{font-size:1.05em;margin:1.4em 0 .4em}
 a{color:#1a5e9a}code{font-size:.9em}
@@ -46,7 +46,7 @@ table.resti-table td,table.resti-table th{border:1px solid #d0d0d0;padding:.2em 
 text-align:left}
 table.resti-table th{background:#f3f3f3}
 p.caption{font-size:.88em;color:#444;margin:.8em 0 .2em}p.more{font-size:.8em;color:#666;margin:0}
-figure{margin:1.2em 0 2em;max-width:100%}figure img{display:block;width:100%;height:auto;border:1px solid #eee}
+figure{margin:1.2em 0 2em;max-width:100%}figure img{display:block;max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:.88em;color:#444;margin-top:.3em}figcaption .file{color:#888;font-size:.9em}
 ul.files{columns:2;font-size:.88em}ul.files li{break-inside:avoid}
 """

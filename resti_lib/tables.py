@@ -83,6 +83,8 @@ def to_html(df: pd.DataFrame, *, floatfmt: str = ".4g", caption: str | None = No
     if max_rows is not None and len(shown) > max_rows:
         more = f"<p class=\"more\">first {max_rows} of {len(shown):,} rows</p>"
         shown = shown.head(max_rows)
+    # long column names may wrap after an underscore (zero-width space), so tables fit the page
+    shown.columns = [c.replace("_", "_\u200b") for c in shown.columns]
     body = shown.to_html(index=False, border=0, escape=True, classes="resti-table")
     cap = f"<p class=\"caption\">{html.escape(caption)}</p>" if caption else ""
     return f"{cap}<div class=\"table-wrap\">{body}</div>{more}"
