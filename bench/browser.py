@@ -52,7 +52,7 @@ class Browser:
         self.requests: dict[str, dict] = {}
 
     # -- process and transport
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         self._profile = tempfile.mkdtemp(prefix="resti-browser-")
         r_cmd, self._w = os.pipe()
         self._r, w_res = os.pipe()

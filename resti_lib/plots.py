@@ -15,7 +15,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from scipy.stats import beta  # noqa: E402
 
 from . import TASKS  # noqa: E402
 from .figures import save_figure  # noqa: E402
@@ -38,6 +37,8 @@ def styled(fn):
 
 def clopper_pearson(hits, n, level: float = 0.95):
     """Exact binomial confidence interval for hits/n (arrays allowed)."""
+    from scipy.stats import beta  # imported here: most figures do not need scipy
+
     hits, n = np.asarray(hits, float), np.asarray(n, float)
     a = (1 - level) / 2
     lo = np.where(hits > 0, beta.ppf(a, np.maximum(hits, 1e-12), n - hits + 1), 0.0)

@@ -101,9 +101,9 @@ def test_warm_rerun_does_nothing(main_run):
 
 def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run, miniworld, tmp_path):
     text = (paths.PARAMS / "dimensional.yaml").read_text()
-    assert re.search(r"^decimals: 2 ", text, re.M)
+    assert re.search(r"^decimals: 2 ", text, re.MULTILINE)
     dim = tmp_path / "dimensional.yaml"
-    dim.write_text(re.sub(r"^decimals: 2 ", "decimals: 3 ", text, flags=re.M))
+    dim.write_text(re.sub(r"^decimals: 2 ", "decimals: 3 ", text, flags=re.MULTILINE))
 
     # incremental: a copy of the session's outputs, one task's params edited
     inc = tmp_path / "incremental"
