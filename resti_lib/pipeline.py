@@ -148,6 +148,18 @@ def plan(stages: list[dict], common: dict) -> tuple[dict[str, int], dict[str, li
     return waves, needs
 
 
+def closure(name: str, needs: dict[str, list[str]]) -> list[str]:
+    """Every stage ``name`` needs, directly or through another stage (in first-seen order)."""
+    seen: list[str] = []
+    todo = list(needs.get(name, []))
+    while todo:
+        n = todo.pop(0)
+        if n not in seen:
+            seen.append(n)
+            todo += needs.get(n, [])
+    return seen
+
+
 def downstream(names: list[str], needs: dict[str, list[str]], stages: list[dict]) -> list[str]:
     """Stages (not on-demand) that need any of ``names``, directly or through another stage."""
     found = set(names)
@@ -165,20 +177,21 @@ def downstream(names: list[str], needs: dict[str, list[str]], stages: list[dict]
 class Planner:
     """Keys of the stages of one run (params, inputs, code, upstream keys) against the state."""
 
-    def __init__(self, cfg: dict, common: dict, out_root: Path, context: dict):
+    def __init__(self, cfg: dict, common: dict, out_root: Path, needs: dict[str, list[str]]):
         from .runinfo import package_versions
         from .stages import Fingerprints, State, code_digest
 
-        self.cfg, self.common, self.out_root, self.context = cfg, common, out_root, context
+        self.cfg, self.common, self.out_root, self.needs = cfg, common, out_root, needs
         self.state = State(out_root)
         self.fp = Fingerprints(out_root)
         self.code = code_digest()
         self.env = package_versions()
         world = cfg.get("world_dir")
         self.exclude = [out_root / ".resti"] + ([paths.resolve(world)] if world else [])
-        self._prepared: dict[str, tuple[Path, dict]] = {}
+        self._prepared: dict[str, tuple[Path, dict, bool]] = {}
 
-    def prepared(self, stage: dict) -> tuple[Path, dict]:
+    def prepared(self, stage: dict) -> tuple[Path, dict, bool]:
+        """Notebook, merged parameters, and whether it takes the run context."""
         n = stage["notebook"]
         if n not in self._prepared:
             nb = _notebook(stage)
@@ -187,17 +200,35 @@ class Planner:
                 declared = list(notebook_parameters(nb))
                 self.state.remember_declared(nb, declared)
             nb, params = stage_params(stage, self.common, declared=set(declared))
-            if "run_context" in declared:
-                params["run_context"] = self.context
-            self._prepared[n] = (nb, params)
+            self._prepared[n] = (nb, params, "run_context" in declared)
         return self._prepared[n]
 
+    def context(self, stage: dict, params: dict) -> dict:
+        """The run block for a stage that takes it: the params of the stages it is made from as
+        they last ran (so a stage left stale by ``--only`` is stated with the params of its outputs)."""
+        from .runinfo import run_context, stage_params_digest
+
+        digests = {}
+        for n in closure(stage["notebook"], self.needs):
+            recorded = (self.state.stages.get(n) or {}).get("own_params")
+            digests[n] = recorded or stage_params_digest(self.prepared_by_name(n)[1])
+        digests[stage["notebook"]] = stage_params_digest(params)
+        return run_context(self.cfg, digests, reference=params.get("reference_release"))
+
+    def prepared_by_name(self, name: str) -> tuple[Path, dict, bool]:
+        return self.prepared(next(s for s in self.cfg.get("stages") or [] if s["notebook"] == name))
+
     def key(self, stage: dict, needs: list[str]):
+        """The stage's key and the parameters it runs with."""
+        from .runinfo import stage_params_digest
         from .stages import stage_key
 
-        nb, params = self.prepared(stage)
-        return stage_key(nb, params, code=self.code, env=self.env, inputs=self.fp.inputs(params),
-                         needs={n: self.state.key_of(n) for n in needs})
+        nb, params, takes_context = self.prepared(stage)
+        run_params = {**params, "run_context": self.context(stage, params)} if takes_context else params
+        k = stage_key(nb, run_params, code=self.code, env=self.env, inputs=self.fp.inputs(params),
+                      needs={n: self.state.key_of(n) for n in needs})
+        k.own_params = stage_params_digest(params)
+        return k, run_params
 
     def scan(self) -> dict:
         from .stages import scan
@@ -208,7 +239,7 @@ class Planner:
 def _report_key(planner: Planner) -> str:
     from .runinfo import digest
 
-    return digest({"code": planner.code, "context": planner.context,
+    return digest({"code": planner.code,
                    "stages": {n: s.get("key") for n, s in sorted(planner.state.stages.items()) if n != REPORT}})
 
 
@@ -218,8 +249,6 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
     Bad params raise :class:`InputError` (one line, naming the file and field).
     """
     from tqdm.auto import tqdm
-
-    from .runinfo import run_context, stage_own_params
 
     t_start = time.perf_counter()
     params_file = params_file or paths.PARAMS / "default.yaml"
@@ -235,7 +264,6 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
         print("resti run: the params name inputs that are missing or wrong:\n  - " + "\n  - ".join(problems),
               file=sys.stderr)
         return 2
-    own = stage_own_params(cfg)
     waves, needs = plan(stages, common)
     if selected is None:
         candidates = [s["notebook"] for s in stages if not s.get("on_demand")]
@@ -246,8 +274,7 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
         forced = set(candidates) if force else set(selected)
     by_name = {s["notebook"]: s for s in stages}
     out_root = paths.resolve(cfg.get("output_dir") or "outputs")
-    context = run_context(cfg, own)
-    planner = Planner(cfg, common, out_root, context)
+    planner = Planner(cfg, common, out_root, needs)
     jobs = jobs or cfg.get("jobs") or os.cpu_count() or 1
     nb_dir, html_dir = out_root / "notebooks", out_root / "report" / "notebooks"
     ran, skipped, seconds = [], [], {}
@@ -256,9 +283,9 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
         for w in sorted({waves[n] for n in candidates}):
             wave = [n for n in candidates if waves[n] == w]
             current = planner.scan()
-            keys, todo = {}, []
+            keys, run_params, todo = {}, {}, []
             for n in wave:
-                keys[n] = planner.key(by_name[n], needs[n])
+                keys[n], run_params[n] = planner.key(by_name[n], needs[n])
                 reason = "forced" if n in forced else planner.state.stale_reason(n, keys[n], current)
                 (todo if reason else skipped).append(n)
             if not todo:
@@ -268,11 +295,10 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
             else:
                 bar.total += len(todo)
                 bar.refresh()
-            prepared = [planner.prepared(by_name[n]) for n in todo]
             failed = None
-            with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(prepared)))) as ex:
-                futures = {n: ex.submit(run_notebook, nb, p, out_dir=nb_dir, html_dir=html_dir)
-                           for n, (nb, p) in zip(todo, prepared)}
+            with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as ex:
+                futures = {n: ex.submit(run_notebook, planner.prepared(by_name[n])[0], run_params[n], out_dir=nb_dir,
+                                        html_dir=html_dir) for n in todo}
                 for n, f in futures.items():
                     try:
                         r = f.result()
@@ -285,7 +311,8 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
                     bar.update(1)
                     bar.set_postfix_str(f"{r.name} {r.seconds:.1f}s")
             done = [n for n in todo if n in seconds]
-            planner.state.record(done, {n: keys[n].parts() for n in done}, seconds, current, planner.scan())
+            planner.state.record(done, {n: {**keys[n].parts(), "own_params": keys[n].own_params} for n in done},
+                                 seconds, current, planner.scan())
             planner.fp.forget_outputs()
             planner.state.save()
             if failed:
@@ -313,7 +340,7 @@ def _write_report(planner: Planner, out_root: Path, *, force: bool) -> Path:
         return index
     from .report import write_index
 
-    write_index(out_root, context=planner.context, products=set(planner.state.data["products"]))
+    write_index(out_root, products=set(planner.state.data["products"]))
     planner.state.record([REPORT], {REPORT: {"key": key}}, {}, current, planner.scan())
     planner.state.save()
     return index
@@ -327,7 +354,7 @@ def _warn_stale(planner: Planner, stages: list[dict], candidates: list[str], nee
         n = s["notebook"]
         if n in candidates or s.get("on_demand"):
             continue
-        reason = planner.state.stale_reason(n, planner.key(s, needs[n]), current)
+        reason = planner.state.stale_reason(n, planner.key(s, needs[n])[0], current)
         if reason:
             left.append(f"{n} ({reason})")
     if left:

@@ -101,31 +101,26 @@ def input_description(cfg: dict) -> dict:
             **{k: str(cfg[k]) for k in INPUT_KEYS if cfg.get(k)}}
 
 
-def stage_own_params(cfg: dict) -> dict[str, dict]:
-    """Each stage's own params file, by notebook name (a missing file is reported by the caller)."""
-    from .runner import load_params
-
-    out = {}
-    for s in cfg.get("stages") or []:
-        out[s["notebook"]] = load_params(s["params"]) if s.get("params") else {}
-    return out
+def stage_params_digest(params: dict) -> str:
+    """Digest of one stage's merged parameters, output locations left out (the ``params`` part of
+    its stage key, :func:`resti_lib.stages.stage_key`)."""
+    return digest({k: v for k, v in params.items() if k not in OUTPUT_KEYS and k != "run_context"})
 
 
-def params_digest(cfg: dict, own: dict[str, dict]) -> str:
-    """sha256 of the main params and every stage's params (output locations and ``jobs`` left out)."""
+def params_digest(cfg: dict, stage_digests: dict[str, str]) -> str:
+    """sha256 of the main params (output locations and ``jobs`` left out) and the parameter digests
+    of the stages a release is made from (:func:`stage_params_digest`)."""
     common = {k: v for k, v in cfg.items() if k not in NOT_PARAMS}
-    stages = {name: {k: v for k, v in p.items() if k not in NOT_PARAMS} for name, p in own.items()}
-    return digest({"common": common, "stages": stages})
+    return digest({"common": common, "stages": dict(sorted(stage_digests.items()))})
 
 
-def run_context(cfg: dict, own: dict[str, dict] | None = None) -> dict:
-    """The header block of the report and of ``release.json`` for the main params ``cfg``."""
-    own = stage_own_params(cfg) if own is None else own
+def run_context(cfg: dict, stage_digests: dict[str, str], *, reference: str | None = None) -> dict:
+    """The header block of the report and of ``release.json``: the input, the params digest of the
+    stages the release is made from (as they ran), the code and package versions, the date."""
     ctx = {"input": input_description(cfg)}
-    refs = sorted({str(p["reference_release"]) for p in own.values() if p.get("reference_release")})
-    if refs:
-        ctx["reference_release"] = refs[0]
-    ctx["params_digest"] = params_digest(cfg, own)
+    if reference:
+        ctx["reference_release"] = str(reference)
+    ctx["params_digest"] = params_digest(cfg, stage_digests)
     ctx["code"] = code_version()
     ctx["packages"] = package_versions()
     date = run_date()
@@ -134,8 +129,19 @@ def run_context(cfg: dict, own: dict[str, dict] | None = None) -> dict:
     return ctx
 
 
-def default_context() -> dict:
-    """The run context of ``params/default.yaml`` (for a notebook run on its own)."""
+def default_context(params_file: str | Path | None = None, notebook: str = "99_release_report") -> dict:
+    """The run context of a main params file (default ``params/default.yaml``) for ``notebook`` and
+    the stages it needs, from their current params (for a notebook run on its own; ``resti run``
+    passes the block itself)."""
+    from .pipeline import closure, plan, stage_params
     from .runner import load_params
 
-    return run_context(load_params(Path(paths.PARAMS) / "default.yaml"))
+    cfg = load_params(params_file or Path(paths.PARAMS) / "default.yaml")
+    stages = cfg.get("stages") or []
+    common = {k: v for k, v in cfg.items() if k != "stages"}
+    _, needs = plan(stages, common)
+    by = {s["notebook"]: s for s in stages}
+    names = [*closure(notebook, needs), notebook] if notebook in by else []
+    digests = {n: stage_params_digest(stage_params(by[n], common)[1]) for n in names}
+    ref = stage_params(by[notebook], common)[1].get("reference_release") if notebook in by else None
+    return run_context(cfg, digests, reference=ref)

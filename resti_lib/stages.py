@@ -21,11 +21,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import paths
-from .runinfo import OUTPUT_KEYS, digest
+from .runinfo import OUTPUT_KEYS, digest, stage_params_digest
 
 STATE_DIR = ".resti"
 STATE_FILE = "stages.json"
@@ -150,6 +151,7 @@ class StageKey:
     inputs: str
     needs: str
     key: str = field(init=False)
+    own_params: str = field(init=False, default="")  # the params digest without a run context
 
     def __post_init__(self):
         self.key = digest([self.code, self.params, self.inputs, self.needs])
@@ -160,10 +162,29 @@ class StageKey:
 
 
 def stage_key(notebook: Path, params: dict, *, code: str, env: dict, inputs: dict, needs: dict) -> StageKey:
+    """The key of a stage run with ``params`` (a ``run_context`` among them counts as params)."""
     nb_sha = _file_sha(notebook)
-    own = {k: v for k, v in params.items() if k not in OUTPUT_KEYS}
-    return StageKey(code=digest([nb_sha, code, env]), params=digest(own), inputs=digest(inputs),
-                    needs=digest(needs))
+    p = stage_params_digest(params)
+    if "run_context" in params:
+        p = digest([p, params["run_context"]])
+    return StageKey(code=digest([nb_sha, code, env]), params=p, inputs=digest(inputs), needs=digest(needs))
+
+
+def owners(rel: str, names: list[str]) -> list[str]:
+    """Which of the stages that ran together wrote ``rel``: files are named after their notebook
+    (``tables/03_dimensional_summary.csv``, ``figures/99_attacks_after.png``) or sit in a folder
+    named after its subject (``tasks/dimensional-measurement/``, ``answer_interface/``); a file
+    that names none of them is owned by all of them."""
+    parts = rel.split("/")
+    base = parts[-1]
+    found = [n for n in names if n in rel]
+    if not found:
+        numbers = [n for n in names if base.startswith(n.split("_", 1)[0] + "_")]
+        found = numbers if len(numbers) == 1 else []
+    if not found:
+        words = [set(re.split(r"[-_]", d)) | {d} for d in parts[:-1]]
+        found = [n for n in names if any(n.split("_", 1)[-1] in w for w in words)]
+    return sorted(found or names)
 
 
 class State:
@@ -227,7 +248,7 @@ class State:
         for rel in [r for r in prods if r not in after]:
             del prods[rel]
         for rel in changed:
-            prods[rel] = {"stat": after[rel], "by": sorted(names)}
+            prods[rel] = {"stat": after[rel], "by": owners(rel, names)}
         for n in names:
             self.stages[n] = {**parts[n], "seconds": round(seconds.get(n, 0.0), 2)}
 

@@ -63,6 +63,10 @@ def test_release_json_states_the_run(main_run, miniworld):
     assert run["input"] == {"kind": "mini-world", "synthetic": True, "seed": 0, "world_dir": str(miniworld)}
     assert run["date"] == "2023-11-14T22:13:20Z"  # SOURCE_DATE_EPOCH=1700000000
     assert re.fullmatch(r"[0-9a-f]{64}", run["params_digest"])
+    # the digest the pipeline states equals the one computed from the params files alone
+    from resti_lib.runinfo import default_context
+
+    assert default_context(main_run.params)["params_digest"] == run["params_digest"]
     assert run["code"]["package"].startswith("resti ")
     assert {"python", "numpy", "pandas"} <= set(run["packages"])
     index = (main_run.out / "report" / "index.html").read_text()
@@ -105,32 +109,17 @@ def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run,
     dim = tmp_path / "dimensional.yaml"
     dim.write_text(re.sub(r"^decimals: 2 ", "decimals: 3 ", text, flags=re.MULTILINE))
 
-    # incremental: a copy of the session's outputs, one task's params edited
+    # a copy of the session's outputs; one task's params edited: that task and what is downstream rerun
     inc = tmp_path / "incremental"
     shutil.copytree(main_run.out, inc)
-    p_inc = tmp_path / "inc.yaml"
-    p_inc.write_text(yaml.safe_dump(main_params(miniworld, inc, stage_params={"03_dimensional": dim})))
-    r = run_cli(["run", "--params", str(p_inc)])
+    edited = tmp_path / "edited.yaml"
+    edited.write_text(yaml.safe_dump(main_params(miniworld, inc, stage_params={"03_dimensional": dim})))
+    r = run_cli(["run", "--params", str(edited)])
     assert r.returncode == 0, r.stderr[-3000:]
     assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
 
-    # full: the same params from nothing, every stage forced
-    full = tmp_path / "full"
-    p_full = tmp_path / "full.yaml"
-    p_full.write_text(yaml.safe_dump(main_params(miniworld, full, stage_params={"03_dimensional": dim})))
-    r = run_cli(["run", "--params", str(p_full), "--force"])
-    assert r.returncode == 0, r.stderr[-3000:]
-
-    for name in RELEASE_FILES:
-        assert (inc / "release" / name).read_bytes() == (full / "release" / name).read_bytes(), name
-    assert (inc / "report" / "index.html").read_bytes() == (full / "report" / "index.html").read_bytes()
-    tabs = sorted(p.name for p in (full / "tables").iterdir())
-    assert sorted(p.name for p in (inc / "tables").iterdir()) == tabs
-    for name in tabs:
-        assert (inc / "tables" / name).read_bytes() == (full / "tables" / name).read_bytes(), name
-
-    # the release changed accordingly: Dimensional answers now print three decimals (or more),
-    # every other task's rows are the session run's rows
+    # the release changed accordingly: Dimensional answers print more decimals, every other task's
+    # rows are the session run's rows
     old, new = _rows(main_run.out / "release" / "resti.jsonl"), _rows(inc / "release" / "resti.jsonl")
     assert old.keys() == new.keys()
     dims = [k for k, r in new.items() if r["Task"] == "Dimensional Measurement"]
@@ -141,4 +130,21 @@ def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run,
     for k, r in new.items():
         if r["Task"] != "Dimensional Measurement":
             assert r == old[k], k
+    assert (inc / "report" / "index.html").read_bytes() != (main_run.out / "report" / "index.html").read_bytes()
+
+    # the edit undone: the same two stages rerun and every release file, table and the index are the
+    # bytes of the session's full run with these params
+    undone = tmp_path / "undone.yaml"
+    undone.write_text(yaml.safe_dump(main_params(miniworld, inc)))
+    r = run_cli(["run", "--params", str(undone)])
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
+    full = main_run.out
+    for name in RELEASE_FILES:
+        assert (inc / "release" / name).read_bytes() == (full / "release" / name).read_bytes(), name
+    assert (inc / "report" / "index.html").read_bytes() == (full / "report" / "index.html").read_bytes()
+    tabs = sorted(p.name for p in (full / "tables").iterdir())
+    assert sorted(p.name for p in (inc / "tables").iterdir()) == tabs
+    for name in tabs:
+        assert (inc / "tables" / name).read_bytes() == (full / "tables" / name).read_bytes(), name
     assert set(TASKS) >= {r["Task"] for r in new.values()}

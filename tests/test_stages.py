@@ -98,3 +98,57 @@ def test_state_staleness(tmp_path):
     assert st.stale_reason("x", upstream, scan(out, [])) == "upstream stages changed"
     (out / "tables" / "t.csv").unlink()  # a product removed by hand
     assert "output file(s) changed or missing, e.g. tables/t.csv" in st.stale_reason("x", key, scan(out, []))
+
+
+def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, monkeypatch, capsys):
+    """The stage logic of ``resti run`` with notebooks replaced by a stand-in that writes each
+    stage's files (no kernel): what runs, what is skipped, what ``--only`` leaves and says."""
+    import resti_lib.pipeline as P
+    from resti_lib.runner import NotebookRun
+
+    (tmp_path / "shared" / "data" / "resti_v5").mkdir(parents=True)
+    monkeypatch.setenv("RESTI_SHARED", str(tmp_path / "shared"))  # the reference exists: 00 beside 99
+    out = tmp_path / "out"
+    calls = []
+
+    def fake_run_notebook(nb, params, *, out_dir, html_dir):
+        calls.append(nb.stem)
+        assert ("run_context" in params) == (nb.stem == "99_release_report")
+        for p in (out_dir / nb.name, html_dir / f"{nb.stem}.html", out / "tables" / f"{nb.stem}.csv"):
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_text(f"{nb.stem} {sorted(params)}\n")
+        return NotebookRun(nb.stem, out_dir / nb.name, html_dir / f"{nb.stem}.html", 0.01)
+
+    monkeypatch.setattr(P, "run_notebook", fake_run_notebook)
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    for k in ("world_dir", "legacy_benchmark"):
+        cfg.pop(k)
+    grounding = tmp_path / "grounding.yaml"
+    grounding.write_text((paths.PARAMS / "grounding.yaml").read_text())
+    for s in cfg["stages"]:
+        if s["notebook"] == "01_grounding":
+            s["params"] = str(grounding)
+    cfg["output_dir"] = str(out)
+    main = tmp_path / "main.yaml"
+    main.write_text(yaml.safe_dump(cfg))
+    every = [s["notebook"] for s in cfg["stages"] if not s.get("on_demand")]
+
+    def run(**kw):
+        calls.clear()
+        assert P.run(main, **kw) == 0
+        return set(calls)
+
+    assert run() == set(every)
+    assert (out / "report" / "index.html").exists()
+    assert run() == set()  # nothing changed
+    grounding.write_text(grounding.read_text().replace("alpha: 0.05", "alpha: 0.01"))
+    capsys.readouterr()
+    assert run(only=["dimensional"]) == {"03_dimensional"}  # its key did not change: 99 stays
+    err = capsys.readouterr().err
+    assert "stale stages not run: 01_grounding (params changed)" in err
+    assert "99_release_report" not in err  # 99 is consistent with the outputs it read
+    assert run() == {"01_grounding", "99_release_report"}  # the edit, then what is downstream
+    (out / "tables" / "05_displacement.csv").unlink()  # an output removed by hand
+    assert run() == {"05_displacement"}  # rewritten identically: nothing downstream changes
+    assert run(force=True) == set(every)
+    assert run(only=["90_reoption_release"]) == {"90_reoption_release"}  # on demand, needs nothing
