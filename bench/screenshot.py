@@ -33,10 +33,10 @@ def main(argv: list[str] | None = None) -> None:
     html = Path(argv[0]) if argv else paths.OUTPUTS / "report" / "index.html"
     png = Path(argv[1]) if len(argv) > 1 else html.parent / "screenshot.png"
     screenshot(html, png)
-    from PIL import Image
+    import struct
 
-    with Image.open(png) as im:
-        print(f"screenshot: {png} ({png.stat().st_size:,} bytes, {im.width}x{im.height} px, full page)")
+    width, height = struct.unpack(">II", png.read_bytes()[16:24])  # the PNG header's IHDR chunk
+    print(f"screenshot: {png} ({png.stat().st_size:,} bytes, {width}x{height} px, full page)")
 
 
 if __name__ == "__main__":
