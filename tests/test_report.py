@@ -89,18 +89,18 @@ def test_run_context_date_only_from_source_date_epoch(monkeypatch):
 
 
 def test_run_context_real_input_and_params_digest():
-    from resti_lib.runinfo import params_digest, run_context
+    from resti_lib.runinfo import run_context, stage_params_digest
 
     cfg = {"world_dir": "", "legacy_benchmark": "/data/qa.parquet", "scannet_root": "/data/scans",
            "output_dir": "outputs/real", "jobs": 2, "stages": [{"notebook": "03_dimensional"}]}
-    own = {"03_dimensional": {"decimals": 2, "output_dir": "x"}}
-    ctx = run_context(cfg, own)
+    ctx = run_context(cfg, {"03_dimensional": stage_params_digest({"decimals": 2, "output_dir": "x"})})
     assert ctx["input"] == {"kind": "real data", "synthetic": False, "legacy_benchmark": "/data/qa.parquet",
                             "scannet_root": "/data/scans"}
     # where outputs go and how many jobs run do not change the digest; a parameter does
     moved = {**cfg, "output_dir": "elsewhere", "jobs": 1}
-    assert params_digest(moved, {"03_dimensional": {"decimals": 2, "output_dir": "y"}}) == ctx["params_digest"]
-    assert params_digest(cfg, {"03_dimensional": {"decimals": 3}}) != ctx["params_digest"]
+    same = run_context(moved, {"03_dimensional": stage_params_digest({"decimals": 2, "output_dir": "y"})})
+    other = run_context(cfg, {"03_dimensional": stage_params_digest({"decimals": 3, "output_dir": "x"})})
+    assert same["params_digest"] == ctx["params_digest"] != other["params_digest"]
 
 
 def test_shown_tables_format_percentages_and_drop_positions():
