@@ -8,7 +8,12 @@ import os
 import sys
 from pathlib import Path
 
-from .errors import InputError
+from .errors import BusyError, ContractError, InputError, OutputError, RestiError
+
+# Exit codes: 0 success; 1 the work ran and found a failure (verify FAILED, a notebook or an invariant
+# failed); 2 bad input or a refused output folder (one line on stderr); 3 the output folder is busy.
+EXIT_FAILED, EXIT_INPUT, EXIT_BUSY = 1, 2, 3
+MAX_SKIPPED_SHOWN = 10
 
 
 def cli_path(text: str) -> str:
@@ -25,7 +30,37 @@ def _cmd_verify(a) -> int:
 
     v = verify_path(a.path, legacy=a.legacy)
     print(to_json(v) if a.json else format_text(v))
-    return 0 if v["passed"] else 1
+    return 0 if v["passed"] else EXIT_FAILED
+
+
+def attack_rows(rel) -> tuple[list[dict], dict]:
+    """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
+    a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
+    is not finite or not physically possible)."""
+    from . import LETTERS
+    from .options.checks import ROW_CHECKS, parse_row
+
+    bad: dict = {}
+    for p in rel.problems:
+        if p.file is not None and rel.accepted_file is not None and p.file == str(rel.accepted_file):
+            bad.setdefault(p.row, f"{p.field}: {p.message}")
+    usable = []
+    for i, r in enumerate(rel.accepted.to_dict("records")):
+        rid = next((r[c] for c in ("ReSTI ID", "Legacy Row Key") if isinstance(r.get(c), str) and r[c].strip()), i)
+        if rid in bad:
+            continue
+        pr = parse_row(r, rid)
+        if pr.errors:
+            bad[rid] = "; ".join(f"Candidates.{k}: {m}" for k, m in sorted(pr.errors.items()))
+        elif not pr.complete:
+            bad[rid] = f"Candidates: letters {sorted(pr.candidates)}, expected A-E"
+        elif pr.answer not in LETTERS:
+            bad[rid] = f"Answer: {pr.answer!r} is not a letter A-E"
+        elif msg := ROW_CHECKS["finite_values"](pr) or ROW_CHECKS["value_ranges"](pr):
+            bad[rid] = msg
+        else:
+            usable.append(r)
+    return usable, bad
 
 
 def _cmd_attack(a) -> int:
@@ -34,7 +69,19 @@ def _cmd_attack(a) -> int:
     from .options.attacks import attack_table
 
     rel = load_release(a.path, strict=False)
-    table = attack_table(rel.accepted.to_dict("records"), alpha=a.alpha, attacks=select_attacks(a.attacks))
+    records, skipped = attack_rows(rel)
+    if rel.meta_error is not None:
+        print(f"resti attack: input error: file {rel.meta_file}: {rel.meta_error} (the rows are attacked; "
+              "run resti verify)", file=sys.stderr)
+    if skipped:
+        shown = "; ".join(f"{rid}: {why}" for rid, why in list(skipped.items())[:MAX_SKIPPED_SHOWN])
+        more = f" (and {len(skipped) - MAX_SKIPPED_SHOWN} more)" if len(skipped) > MAX_SKIPPED_SHOWN else ""
+        print(f"resti attack: {len(skipped)} of {len(rel.accepted)} rows of {rel.accepted_file} skipped as "
+              f"structurally bad: {shown}{more}", file=sys.stderr)
+    if not records:
+        print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
+        return EXIT_INPUT
+    table = attack_table(records, alpha=a.alpha, attacks=select_attacks(a.attacks))
     if a.format == "json":
         print(json.dumps(table.to_dict("records"), indent=1, default=float))
     elif a.format == "csv":
@@ -45,20 +92,21 @@ def _cmd_attack(a) -> int:
             shown[c] = shown[c].map(lambda x: f"{x:.3f}")
         shown["p_value"] = shown["p_value"].map(lambda x: f"{x:.3g}")
         print(shown.to_markdown(index=False))
-    return 0
+    return EXIT_INPUT if skipped or rel.meta_error is not None else 0
 
 
 def _cmd_reoption(a) -> int:
-    from .reoption import ReoptionError, reoption_release
+    from .reoption import reoption_release
     from .runner import load_params
 
     params = load_params(a.params) if a.params else {}
-    seed = a.seed if a.seed is not None else int(params.get("seed", 0))
-    try:
-        res = reoption_release(a.release, a.out, seed=seed, options=params.get("options"))
-    except ReoptionError as e:
-        print(f"resti reoption: {e}", file=sys.stderr)
-        return 1
+    seed = a.seed if a.seed is not None else params.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise InputError(f"seed {seed!r} is not an integer", file=a.params, field="seed")
+    opts = params.get("options")
+    if opts is not None and not isinstance(opts, dict):
+        raise InputError(f"options must be a mapping, got {type(opts).__name__}", file=a.params, field="options")
+    res = reoption_release(a.release, a.out, seed=seed, options=opts)
     counts = res.meta["counts"]
     print(f"wrote {res.out_dir}: {counts['accepted']} rows rebuilt, {counts['excluded']} exclusions copied, "
           f"seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
@@ -73,8 +121,9 @@ def _cmd_measure(a) -> int:
 
 
 def _cmd_synth(a) -> int:
-    from .synth import generate
+    from .synth import check_scale, generate
 
+    check_scale(a.scale)
     summary = generate(Path(a.out), seed=a.seed, scale=a.scale)
     print(json.dumps(summary, indent=1, default=str))
     return 0
@@ -135,7 +184,8 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
     ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "
                         "new distractors and letters)")
     ro.add_argument("--release", default="${SHARED}/data/resti_v5", type=cli_path, help="input release folder or file")
-    ro.add_argument("--out", required=True, type=cli_path, help="output folder (replaced atomically)")
+    ro.add_argument("--out", required=True, type=cli_path, help="output folder: new, empty or an earlier resti "
+                    "release (replaced atomically; never the input)")
     ro.add_argument("--seed", type=int, default=None, help="option seed (default: params seed, else 0)")
     ro.add_argument("--params", default=None, type=cli_path,
                     help="params YAML with seed and options (e.g. params/reoption.yaml)")
@@ -151,7 +201,8 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
                                    "with injected defects, and the manifest of those defects.")
     s.add_argument("out", type=cli_path)
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--scale", type=int, default=None)
+    s.add_argument("--scale", type=int, default=None,
+                   help="copies of the 2,064-row legacy structure (1 to 1000; default: the small world)")
     s.set_defaults(fn=_cmd_synth)
 
     r = sub.add_parser("run", help="the main job: notebooks -> release, tables, figures, report",
@@ -199,7 +250,16 @@ def _closed_pipe() -> int:
     return 141  # 128 + SIGPIPE, as a command killed by the closed pipe
 
 
+def exit_code(e: BaseException) -> int:
+    if isinstance(e, BusyError):
+        return EXIT_BUSY
+    if isinstance(e, (InputError, OutputError, ContractError, OSError)):
+        return EXIT_INPUT
+    return EXIT_FAILED
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; every resti error ends as one line on stderr and a non-zero exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     cmd = "resti"
     try:
@@ -214,13 +274,18 @@ def main(argv: list[str] | None = None) -> int:
             rc = args.fn(args)
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return rc
-    except InputError as e:
-        print(f"{cmd}: input error: {e}", file=sys.stderr)
-        return 2
     except BrokenPipeError:
         return _closed_pipe()
+    except RestiError as e:
+        kind = {InputError: "input error", OutputError: "output refused", BusyError: "busy"}.get(type(e), "error")
+        print(f"{cmd}: {kind}: {e}", file=sys.stderr)
+        return exit_code(e)
+    except OSError as e:  # the file system refused a read or a write (permissions, disk full, ...)
+        where = f" {e.filename}" if getattr(e, "filename", None) else ""
+        print(f"{cmd}: system error:{where}: {e.strerror or e}", file=sys.stderr)
+        return EXIT_INPUT
     except KeyboardInterrupt:
-        print(f"{cmd}: interrupted", file=sys.stderr)
+        print(f"{cmd}: interrupted; the previous outputs are intact", file=sys.stderr)
         return 130
 
 

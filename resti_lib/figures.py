@@ -13,7 +13,7 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
-from .io.benchmark import atomic_write_bytes
+from .io.files import atomic_write_bytes
 
 
 def save_figure(fig, path: str | Path, *, dpi: float | None = None) -> Path:

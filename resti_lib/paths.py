@@ -34,29 +34,3 @@ def resolve(path: str | os.PathLike, base: Path = ROOT) -> Path:
     text = str(path).replace("${SHARED}", str(shared_dir()))
     p = Path(text).expanduser()
     return p if p.is_absolute() else (base / p)
-
-
-def umask() -> int:
-    """The process umask, read without changing it where the system allows (``/proc``); outputs
-    written through a temporary file get ``0o666 & ~umask`` (files) or ``0o777 & ~umask`` (folders),
-    as if they had been created directly (``tempfile`` creates them 0600 / 0700)."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    old = os.umask(0o022)  # no /proc: read it by setting it (restored at once)
-    os.umask(old)
-    return old
-
-
-def file_mode() -> int:
-    """Mode of a new output file under the current umask."""
-    return 0o666 & ~umask()
-
-
-def dir_mode() -> int:
-    """Mode of a new output folder under the current umask."""
-    return 0o777 & ~umask()

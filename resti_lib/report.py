@@ -20,7 +20,7 @@ import pandas as pd
 
 from . import paths
 from .figures import ordered_figures
-from .io.benchmark import atomic_write_bytes
+from .io.files import atomic_write_bytes
 from .tables import percent, to_html
 
 CSS = """
@@ -329,7 +329,7 @@ def release_html(out_root: Path, report_dir: Path) -> str:
     if not rel_dir.exists():
         return ""
     items = [f'<li><a href="{_rel(p, report_dir)}">{_e(p.name)}</a> ({p.stat().st_size:,} bytes)</li>'
-             for p in sorted(rel_dir.iterdir()) if p.is_file()]
+             for p in sorted(rel_dir.iterdir()) if p.is_file() and not p.name.startswith(".")]
     return "<section id=\"release\"><h2>Release files</h2><ul class=\"files\">" + "".join(items) + "</ul></section>"
 
 

@@ -47,8 +47,8 @@ def test_missing_params_file_is_one_line(resti, tmp_path):
     assert "params file not found" in line and str(tmp_path / "nope.yaml") in line
 
 
-@pytest.mark.parametrize("text, what", [("a: [1, 2\nb: 3\n", "malformed YAML at line"),
-                                        ("key: value\n  - broken: [\n", "malformed YAML at line"),
+@pytest.mark.parametrize("text, what", [("a: [1, 2\nb: 3\n", "not valid YAML at line"),
+                                        ("key: value\n  - broken: [\n", "not valid YAML at line"),
                                         ("- just\n- a list\n", "params must be a mapping")])
 def test_malformed_params_file_is_one_line(resti, tmp_path, text, what):
     (tmp_path / "bad.yaml").write_text(text)
