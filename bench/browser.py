@@ -14,6 +14,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from typing import Self
 
 CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
@@ -52,7 +53,7 @@ class Browser:
         self.requests: dict[str, dict] = {}
 
     # -- process and transport
-    def __enter__(self) -> Browser:
+    def __enter__(self) -> Self:
         self._profile = tempfile.mkdtemp(prefix="resti-browser-")
         r_cmd, self._w = os.pipe()
         self._r, w_res = os.pipe()
@@ -67,8 +68,8 @@ class Browser:
              "--disable-background-networking", "--disable-component-update", "--disable-quic",
              "--proxy-server=127.0.0.1:9", "--proxy-bypass-list=<-loopback>", "--hide-scrollbars",
              f"--user-data-dir={self._profile}", f"--window-size={self.width},{self.height}", "about:blank"],
-            pass_fds=(3, 4), preexec_fn=fds, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL)
+            pass_fds=(3, 4), preexec_fn=fds,  # noqa: PLW1509 (fds 3 and 4 carry the protocol)
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(r_cmd)
         os.close(w_res)
         target = self.call("Target.createTarget", {"url": "about:blank"})["targetId"]

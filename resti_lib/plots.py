@@ -10,18 +10,23 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from . import TASKS  # noqa: E402
-from .figures import save_figure  # noqa: E402
+from . import TASKS
+from .figures import save_figure
 
 STYLE = {"figure.dpi": 110, "savefig.dpi": 110, "font.size": 9, "svg.hashsalt": "resti",
          "axes.spines.top": False, "axes.spines.right": False, "axes.titlesize": 9, "legend.fontsize": 8}
 FULL_WIDTH_IN = 11.0
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the non-interactive backend (figures are written, never shown)."""
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def styled(fn):
@@ -30,7 +35,7 @@ def styled(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        with plt.rc_context(STYLE):
+        with matplotlib.rc_context(STYLE):
             return fn(*args, **kwargs)
     return wrapper
 
@@ -57,6 +62,7 @@ def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_l
     One panel per task, two panels a row; red points are Holm-significant; the label of an attack
     that picks on part of the rows carries its coverage.
     """
+    plt = pyplot()
     t = table[(table["source"] == "ALL") & (table["picked"] > 0)].copy()
     tasks = [x for x in TASKS if x in set(t["task"])] + sorted(set(t["task"]) - set(TASKS))
     ncol = 2 if len(tasks) > 1 else 1
@@ -95,6 +101,7 @@ def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_l
 @styled
 def audit_overview(coverage: pd.DataFrame, categories: pd.DataFrame, path: Path, *, title: str = "") -> Path:
     """(a) accepted and excluded questions per task, with counts; (b) defect reports per category."""
+    plt = pyplot()
     cov = coverage[coverage["task"] != "Total"]
     fig, (a, b) = plt.subplots(1, 2, figsize=(FULL_WIDTH_IN, 4.0), layout="constrained",
                                gridspec_kw={"width_ratios": [1.35, 1]})
@@ -132,6 +139,7 @@ def scatter_panels(df: pd.DataFrame, path: str | Path, *, x: str, y: str, xlabel
     """Legacy against reconstructed values, one panel per source, coloured by ``group`` (y = x
     dashed). ``series``: extra ``(x column, label)`` pairs drawn against ``y`` with other markers.
     One legend for the figure, below the panels."""
+    plt = pyplot()
     sources = [s for s in ("ScanNet", "Waymo", "Omni6DPose") if s in set(df["source"])] or ["(none)"]
     fig, axes = plt.subplots(1, len(sources), figsize=(min(FULL_WIDTH_IN, 3.7 * len(sources) + 0.5), 3.9),
                              squeeze=False, layout="constrained")

@@ -77,7 +77,7 @@ def run_cli(args: list[str], *, umask: int | None = None, cwd=None, env: dict | 
     e = {**os.environ, "SOURCE_DATE_EPOCH": SOURCE_DATE_EPOCH, **(env or {})}
     pre = (lambda: os.umask(umask)) if umask is not None else None
     return subprocess.run([sys.executable, "-m", "resti_lib.cli", *args], capture_output=True, text=True,
-                          cwd=cwd or paths.ROOT, env=e, preexec_fn=pre, timeout=1800)
+                          cwd=cwd or paths.ROOT, env=e, preexec_fn=pre, timeout=1800, check=False)
 
 
 class MainRun:
