@@ -4,38 +4,51 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PARAMS ?= params/default.yaml
+PIP := $(BIN)/pip --disable-pip-version-check -q
+# `make report FORCE=1` reruns every stage (default: only the stages whose inputs, params or code changed)
+RUN_FLAGS := $(if $(FORCE),--force,)
 
-.PHONY: help venv report reoption test bench bench-scale screenshot lint clean strip-notebooks
+.PHONY: help venv report reoption test bench bench-scale screenshot browser lint clean strip-notebooks
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
 
 $(STAMP): pyproject.toml
-	$(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
-	$(BIN)/python -m ipykernel install --sys-prefix --name python3 --display-name "Python 3 (resti)" >/dev/null
-	touch $(STAMP)
+	@echo "resti: creating $(VENV) with $(PY)"
+	@$(PY) -m venv $(VENV)
+	@echo "resti: installing resti and its dependencies into $(VENV) (pip, 1-3 minutes) ..."
+	@$(PIP) install --upgrade pip
+	@PYTHONWARNINGS=ignore::UserWarning $(PIP) install --progress-bar off -e '.[dev]'  # no editable-mode banners
+	@echo "resti: registering the notebook kernel"
+	@$(BIN)/python -m ipykernel install --sys-prefix --name python3 --display-name "Python 3 (resti)" >/dev/null
+	@touch $(STAMP)
+	@echo "resti: ready ($(VENV)); next: make report"
 
 venv: $(STAMP)  ## create .venv and install resti with its dependencies
 
-report: $(STAMP)  ## main job: mini-world (if absent) -> task notebooks -> release, tables, figures, HTML report
-	$(BIN)/resti run --params $(PARAMS)
+report: $(STAMP)  ## main job: reruns the stages that changed (FORCE=1: all) -> release, tables, figures, HTML report
+	@$(BIN)/resti run --params $(PARAMS) $(RUN_FLAGS)
 
 reoption: $(STAMP)  ## rebuild the options of the public ReSTI v5 release (notebook 90) and re-index the report
-	$(BIN)/resti run --params $(PARAMS) --only 90_reoption_release
+	@$(BIN)/resti run --params $(PARAMS) --only 90_reoption_release $(RUN_FLAGS)
 
-test: $(STAMP)  ## run the test suite (real-data tests need ../shared or RESTI_SHARED)
+test: $(STAMP)  ## run the test suite (real-data tests need ../shared or RESTI_SHARED; browser tests need chromium)
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, default run
+bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, make report cold/warm/one task
 	$(BIN)/python -m bench
 
 bench-scale: $(STAMP)  ## scale benchmark: the 2,064-row structure and 100x (about 206k rows, ~10 min)
 	$(BIN)/python -m bench bench_scale
 
-screenshot: $(STAMP)  ## render outputs/report/index.html in headless Chromium and save a PNG
-	$(BIN)/python -m bench.screenshot
+screenshot: $(STAMP)  ## render outputs/report/index.html in headless Chromium, full page, to a PNG
+	@$(BIN)/python -m bench.screenshot
+
+browser:  ## install headless Chromium (Debian, as root) for the report's browser test and `make screenshot`
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
+	  { echo "resti: installing chromium (apt-get) for the browser test ..."; \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 || \
+	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null; }; }
 
 lint: $(STAMP)  ## ruff
 	$(BIN)/ruff check resti_lib tests bench
@@ -44,4 +57,4 @@ strip-notebooks: $(STAMP)  ## remove outputs from committed notebooks
 	$(BIN)/python -m resti_lib.runner --strip notebooks/*.ipynb
 
 clean:  ## remove generated outputs (keeps .venv)
-	rm -rf outputs/* && touch outputs/.gitkeep
+	rm -rf outputs/* outputs/.resti && touch outputs/.gitkeep

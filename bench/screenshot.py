@@ -1,43 +1,43 @@
-"""Render outputs/report/index.html in headless Chromium and save a PNG, so the rendering is seen.
+"""Render outputs/report/index.html in headless Chromium and save a full-page PNG, so the rendering
+is seen (``make screenshot``, after ``make report``).
 
-``make screenshot`` (after ``make report``). Needs Debian's ``chromium`` (``apt-get install chromium``);
-the page is opened from disk (file://), with background networking off.
+Needs Debian's ``chromium`` (``apt-get install chromium``); the page is opened from disk (file://)
+with the network off. ``python -m bench.screenshot [HTML [PNG]]``.
 """
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
+from bench.browser import Browser, BrowserError, find_browser
 from resti_lib import paths
 
 
-def screenshot(html: Path, png: Path, *, width: int = 1280, height: int = 2400) -> Path:
-    exe = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
-    if exe is None:
+def screenshot(html: Path, png: Path, *, width: int = 1280) -> Path:
+    if find_browser() is None:
         raise SystemExit("screenshot: no chromium on PATH (Debian: apt-get install chromium)")
     if not html.exists():
         raise SystemExit(f"screenshot: {html} not found; run `make report` first")
-    png.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as profile:
-        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--hide-scrollbars", f"--user-data-dir={profile}", f"--window-size={width},{height}",
-               f"--screenshot={png}", html.resolve().as_uri()]
-        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    if r.returncode != 0 or not png.exists() or png.stat().st_size < 1000:
-        raise SystemExit(f"screenshot: chromium failed ({r.returncode}): {r.stderr[-500:]}")
+    try:
+        with Browser(width=width) as b:
+            b.open(html)
+            b.screenshot(png, full_page=True)
+    except BrowserError as e:
+        raise SystemExit(f"screenshot: {e}") from None
     return png
 
 
-def main() -> None:
-    html = paths.OUTPUTS / "report" / "index.html"
-    png = screenshot(html, paths.OUTPUTS / "report" / "screenshot.png")
-    print(f"screenshot: {png} ({png.stat().st_size:,} bytes)")
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    html = Path(argv[0]) if argv else paths.OUTPUTS / "report" / "index.html"
+    png = Path(argv[1]) if len(argv) > 1 else html.parent / "screenshot.png"
+    screenshot(html, png)
+    import struct
+
+    width, height = struct.unpack(">II", png.read_bytes()[16:24])  # the PNG header's IHDR chunk
+    print(f"screenshot: {png} ({png.stat().st_size:,} bytes, {width}x{height} px, full page)")
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

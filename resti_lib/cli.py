@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -13,6 +14,15 @@ from .errors import BusyError, ContractError, InputError, OutputError, RestiErro
 # failed); 2 bad input or a refused output folder (one line on stderr); 3 the output folder is busy.
 EXIT_FAILED, EXIT_INPUT, EXIT_BUSY = 1, 2, 3
 MAX_SKIPPED_SHOWN = 10
+
+
+def cli_path(text: str) -> str:
+    """A path given on the command line: ``${SHARED}`` expanded, ``~`` expanded, and a relative path
+    taken from the current directory (params *files* state their paths from the repository root)."""
+    from . import paths
+
+    p = Path(str(text).replace("${SHARED}", str(paths.shared_dir()))).expanduser()
+    return str(p if p.is_absolute() else Path.cwd() / p)
 
 
 def _cmd_verify(a) -> int:
@@ -122,53 +132,122 @@ def _cmd_synth(a) -> int:
 def _cmd_run(a) -> int:
     from .pipeline import run
 
-    return run(a.params, only=a.only, jobs=a.jobs)
+    return run(a.params, only=a.only, jobs=a.jobs, force=a.force)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="resti", description=__doc__)
+def _stage_help() -> str:
+    """The stages of params/default.yaml, for ``resti run --help``."""
+    try:
+        from . import paths
+        from .runner import load_params
+
+        stages = load_params(paths.PARAMS / "default.yaml").get("stages") or []
+        names = [f"{s['notebook']} ({s['notebook'].split('_', 1)[-1]}{', on demand' if s.get('on_demand') else ''})"
+                 for s in stages]
+    except (InputError, OSError, KeyError, TypeError, AttributeError):
+        return ""
+    return "stages of params/default.yaml (full name or the part after the number): " + ", ".join(names)
+
+
+def _attack_help() -> str:
+    """The registered attacks, for ``resti attack --help`` (imports the attack registry)."""
+    from .options.attacks import ATTACKS
+
+    return "attacks: " + ", ".join(sorted(ATTACKS))
+
+
+def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
+    """The command line. ``full_help``: list the registered attacks and the stages in the help
+    (costs an import of the attack registry, so only when help is asked for)."""
+    p = argparse.ArgumentParser(prog="resti", description=__doc__,
+                                epilog="`resti COMMAND --help` describes each command. Paths given on the "
+                                       "command line are taken from the current directory.")
     sub = p.add_subparsers(dest="cmd", required=True)
 
-    v = sub.add_parser("verify", help="validate a ReSTI-schema release (folder or file)")
-    v.add_argument("path")
+    v = sub.add_parser("verify", help="validate a ReSTI-schema release (folder or file)",
+                       description="Structural validation of a ReSTI-schema release (folder or accepted-rows file).")
+    v.add_argument("path", type=cli_path)
     v.add_argument("--json", action="store_true", help="print the validation object as JSON")
-    v.add_argument("--legacy", help="legacy qa.parquet: also check that every legacy row is accounted for")
+    v.add_argument("--legacy", type=cli_path,
+                   help="legacy qa.parquet: also check that every legacy row is accounted for")
     v.set_defaults(fn=_cmd_verify)
 
-    at = sub.add_parser("attack", help="option-only attacks on a release")
-    at.add_argument("path")
+    at = sub.add_parser("attack", help="option-only attacks on a release",
+                        description="Option-only (blind) attacks on a release: accuracy against chance 1/5, "
+                                    "Holm over the table.", epilog=_attack_help() if full_help else None)
+    at.add_argument("path", type=cli_path)
     at.add_argument("--format", choices=["md", "csv", "json"], default="md")
     at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate")
-    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all)")
+    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all; listed below)")
     at.set_defaults(fn=_cmd_attack)
 
     ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "
                         "new distractors and letters)")
-    ro.add_argument("--release", default="${SHARED}/data/resti_v5", help="input release folder or file")
-    ro.add_argument("--out", required=True, help="output folder: new, empty or an earlier resti release "
-                    "(replaced atomically; never the input)")
+    ro.add_argument("--release", default="${SHARED}/data/resti_v5", type=cli_path, help="input release folder or file")
+    ro.add_argument("--out", required=True, type=cli_path, help="output folder: new, empty or an earlier resti "
+                    "release (replaced atomically; never the input)")
     ro.add_argument("--seed", type=int, default=None, help="option seed (default: params seed, else 0)")
-    ro.add_argument("--params", default=None, help="params YAML with seed and options (e.g. params/reoption.yaml)")
+    ro.add_argument("--params", default=None, type=cli_path,
+                    help="params YAML with seed and options (e.g. params/reoption.yaml)")
     ro.set_defaults(fn=_cmd_reoption)
 
-    m = sub.add_parser("measure", help="evaluate measurement contracts against the sources",
-                       add_help=False)
+    m = sub.add_parser("measure", help="evaluate measurement contracts against the sources "
+                       "(`resti measure --help`)", add_help=False)
     m.add_argument("rest", nargs=argparse.REMAINDER)
     m.set_defaults(fn=_cmd_measure)
 
-    s = sub.add_parser("synth", help="generate the mini-world (sources + legacy benchmark + manifest)")
-    s.add_argument("out")
+    s = sub.add_parser("synth", help="generate the mini-world (sources + legacy benchmark + manifest)",
+                       description="Generate the mini-world: sources in their real formats, a legacy benchmark "
+                                   "with injected defects, and the manifest of those defects.")
+    s.add_argument("out", type=cli_path)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--scale", type=int, default=None,
                    help="copies of the 2,064-row legacy structure (1 to 1000; default: the small world)")
     s.set_defaults(fn=_cmd_synth)
 
-    r = sub.add_parser("run", help="the main job: notebooks -> release, tables, figures, report")
-    r.add_argument("--params", default="params/default.yaml")
-    r.add_argument("--only", nargs="*", default=None, help="run only these notebooks/stages")
+    r = sub.add_parser("run", help="the main job: notebooks -> release, tables, figures, report",
+                       description="The main job. Stages whose notebook, code, params, inputs and upstream "
+                                   "stages are unchanged since their last run are skipped.",
+                       epilog=_stage_help() if full_help else None)
+    r.add_argument("--params", default=None, type=cli_path,
+                   help="main params file (default: params/default.yaml of the repository)")
+    r.add_argument("--only", nargs="+", default=None, metavar="STAGE",
+                   help="run these stages (even when up to date), then every stage downstream of them that "
+                        "became stale; names are listed below")
+    r.add_argument("--force", action="store_true", help="rerun every stage, up to date or not")
     r.add_argument("--jobs", type=int, default=None, help="parallel notebooks (default: cores)")
     r.set_defaults(fn=_cmd_run)
     return p
+
+
+def _measure_argv(rest: list[str]) -> list[str]:
+    """``resti measure`` arguments with the contract file and ``--params`` taken from the current
+    directory (the command parses them itself; ``-`` is stdin)."""
+    out, params_next = [], False
+    for a in rest:
+        if params_next:
+            out.append(cli_path(a))
+            params_next = False
+        elif a == "--params":
+            out.append(a)
+            params_next = True
+        elif a.startswith("--params="):
+            out.append("--params=" + cli_path(a.split("=", 1)[1]))
+        elif a.startswith("-"):
+            out.append(a)
+        else:
+            out.append(cli_path(a))
+    return out
+
+
+def _closed_pipe() -> int:
+    """stdout was closed by the reader (``resti attack ... | head``): stop quietly."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except OSError:
+        pass
+    return 141  # 128 + SIGPIPE, as a command killed by the closed pipe
 
 
 def exit_code(e: BaseException) -> int:
@@ -181,19 +260,32 @@ def exit_code(e: BaseException) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; every resti error ends as one line on stderr and a non-zero exit code."""
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    cmd = "resti"
     try:
-        return args.fn(args)
+        if argv[:1] == ["measure"]:  # its own parser (and its own --help)
+            cmd = "resti measure"
+            from .measure import measure_main
+
+            rc = measure_main(_measure_argv(argv[1:]))
+        else:
+            args = build_parser(full_help=bool({"-h", "--help"} & set(argv))).parse_args(argv)
+            cmd = f"resti {args.cmd}"
+            rc = args.fn(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return rc
+    except BrokenPipeError:
+        return _closed_pipe()
     except RestiError as e:
         kind = {InputError: "input error", OutputError: "output refused", BusyError: "busy"}.get(type(e), "error")
-        print(f"resti {args.cmd}: {kind}: {e}", file=sys.stderr)
+        print(f"{cmd}: {kind}: {e}", file=sys.stderr)
         return exit_code(e)
     except OSError as e:  # the file system refused a read or a write (permissions, disk full, ...)
         where = f" {e.filename}" if getattr(e, "filename", None) else ""
-        print(f"resti {args.cmd}: system error:{where}: {e.strerror or e}", file=sys.stderr)
+        print(f"{cmd}: system error:{where}: {e.strerror or e}", file=sys.stderr)
         return EXIT_INPUT
     except KeyboardInterrupt:
-        print(f"resti {args.cmd}: interrupted; the previous outputs are intact", file=sys.stderr)
+        print(f"{cmd}: interrupted; the previous outputs are intact", file=sys.stderr)
         return 130
 
 

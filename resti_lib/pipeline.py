@@ -3,6 +3,11 @@
 ``params/default.yaml`` lists the stages; each stage is a notebook with its own params file.
 Keys of ``default.yaml`` that a notebook's ``parameters`` cell declares are passed to it too, so
 source roots and the legacy path are stated once.
+
+Stages run in waves (stages of one wave in parallel). A stage whose notebook, code, params,
+inputs and upstream stages are unchanged since it last ran, and whose output files are intact, is
+skipped (:mod:`resti_lib.stages`); ``force=True`` reruns everything. ``only`` runs the named stages
+and then every stage downstream of them that became stale, and names the stale stages it left.
 """
 
 from __future__ import annotations
@@ -13,11 +18,11 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from tqdm.auto import tqdm
-
 from . import paths
 from .errors import InputError
 from .runner import NotebookError, load_params, notebook_parameters, run_notebook
+
+REPORT = "report"  # the index page: a last stage of its own, run by this process
 
 
 def check_stages(cfg: dict, params_file) -> None:
@@ -46,12 +51,21 @@ def check_stages(cfg: dict, params_file) -> None:
             load_params(st["params"])
 
 
-def stage_params(stage: dict, common: dict) -> tuple[Path, dict]:
+def _notebook(stage: dict) -> Path:
     nb = paths.NOTEBOOKS / f"{stage['notebook']}.ipynb"
     if not nb.exists():
-        raise InputError("stage notebook not found", file=nb, field="notebook")
+        known = ", ".join(sorted(p.stem for p in paths.NOTEBOOKS.glob("*.ipynb")))
+        raise InputError(f"stage notebook {stage['notebook']!r} not found in {paths.NOTEBOOKS} (notebooks: {known})",
+                         field="stages")
+    return nb
+
+
+def stage_params(stage: dict, common: dict, *, declared=None) -> tuple[Path, dict]:
+    """The notebook of a stage and its parameters: the keys of ``common`` that its parameters cell
+    declares, then its own params file. ``declared``: the declared names when already known."""
+    nb = _notebook(stage)
     own = load_params(stage["params"]) if stage.get("params") else {}
-    declared = notebook_parameters(nb)
+    declared = notebook_parameters(nb) if declared is None else declared
     merged = {k: v for k, v in common.items() if k in declared}
     merged.update(own)
     return nb, merged
@@ -108,77 +122,343 @@ def missing_inputs(cfg: dict) -> list[str]:
     return check_real_params(cfg)
 
 
-def stage_wave(stage: dict, common: dict) -> int:
-    """The stage's wave; ``wave_if_missing: {param, wave}`` moves it to a later wave when the path
-    named by that parameter does not exist yet (e.g. the answer-interface audit of the reference
-    release runs beside the release notebook, but after it when it must audit our own release)."""
+def stage_wave(stage: dict, common: dict) -> tuple[int, bool]:
+    """The stage's wave, and whether ``wave_if_missing`` moved it: ``wave_if_missing: {param,
+    wave}`` moves a stage to a later wave when the path named by that parameter does not exist
+    (e.g. the answer-interface audit of the reference release runs beside the release notebook, but
+    after it when it must audit our own release)."""
     wave = int(stage.get("wave", 0))
     alt = stage.get("wave_if_missing")
     if alt:
         own = load_params(stage["params"]) if stage.get("params") else {}
         value = own.get(alt["param"], common.get(alt["param"]))
         if not value or not paths.resolve(value).exists():
-            wave = int(alt["wave"])
-    return wave
+            return int(alt["wave"]), True
+    return wave, False
 
 
-def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int | None = None) -> int:
-    """Run the stages of ``params_file``; returns a process exit code.
+def stage_names(cfg: dict) -> list[str]:
+    return [s["notebook"] for s in cfg.get("stages") or []]
 
-    The whole run holds the lock of its output folder (:func:`resti_lib.lock.run_lock`): a second
-    run on the same output folder stops at once with a :class:`~resti_lib.errors.BusyError`.
+
+def match_only(stages: list[dict], only: list[str]) -> list[str]:
+    """Notebook names of the stages named by ``only`` (full name, or the name without its number:
+    ``dimensional`` for ``03_dimensional``). Unknown names raise :class:`InputError`."""
+    if not only:
+        raise InputError("--only needs at least one stage name; stages: " + _stage_list(stages))
+    by_alias = {}
+    for s in stages:
+        nb = s["notebook"]
+        by_alias[nb] = nb
+        by_alias.setdefault(nb.split("_", 1)[-1], nb)
+    unknown = [n for n in only if n not in by_alias]
+    if unknown:
+        raise InputError(f"unknown stage(s) {unknown}; stages: " + _stage_list(stages))
+    return list(dict.fromkeys(by_alias[n] for n in only))
+
+
+def _stage_list(stages: list[dict]) -> str:
+    return ", ".join(f"{s['notebook']} ({s['notebook'].split('_', 1)[-1]})" for s in stages)
+
+
+def plan(stages: list[dict], common: dict) -> tuple[dict[str, int], dict[str, list[str]]]:
+    """Wave and needs of every stage. ``needs`` defaults to every (not on-demand) stage of an earlier
+    wave; a stage moved by ``wave_if_missing`` needs every earlier stage too."""
+    waves, moved = {}, {}
+    for s in stages:
+        waves[s["notebook"]], moved[s["notebook"]] = stage_wave(s, common)
+    names = {s["notebook"] for s in stages}
+    needs = {}
+    for s in stages:
+        n = s["notebook"]
+        explicit = s.get("needs")
+        if explicit is not None and not moved[n]:
+            unknown = [x for x in explicit if x not in names]
+            if unknown:
+                raise InputError(f"stage {n}: needs unknown stage(s) {unknown}", field="stages")
+            needs[n] = list(explicit)
+        else:
+            needs[n] = [t["notebook"] for t in stages if not t.get("on_demand") and waves[t["notebook"]] < waves[n]]
+    return waves, needs
+
+
+def closure(name: str, needs: dict[str, list[str]]) -> list[str]:
+    """Every stage ``name`` needs, directly or through another stage (in first-seen order)."""
+    seen: list[str] = []
+    todo = list(needs.get(name, []))
+    while todo:
+        n = todo.pop(0)
+        if n not in seen:
+            seen.append(n)
+            todo += needs.get(n, [])
+    return seen
+
+
+def downstream(names: list[str], needs: dict[str, list[str]], stages: list[dict]) -> list[str]:
+    """Stages (not on-demand) that need any of ``names``, directly or through another stage."""
+    found = set(names)
+    grew = True
+    while grew:
+        grew = False
+        for s in stages:
+            n = s["notebook"]
+            if n not in found and not s.get("on_demand") and set(needs[n]) & found:
+                found.add(n)
+                grew = True
+    return [s["notebook"] for s in stages if s["notebook"] in found and s["notebook"] not in names]
+
+
+class Planner:
+    """Keys of the stages of one run (params, inputs, code, upstream keys) against the state."""
+
+    def __init__(self, cfg: dict, common: dict, out_root: Path, needs: dict[str, list[str]]):
+        from .runinfo import package_versions
+        from .stages import Fingerprints, State, code_digest
+
+        self.cfg, self.common, self.out_root, self.needs = cfg, common, out_root, needs
+        self.state = State(out_root)
+        self.fp = Fingerprints(out_root)
+        self.code = code_digest()
+        self.env = package_versions()
+        world = cfg.get("world_dir")
+        self.exclude = [out_root / ".resti"] + ([paths.resolve(world)] if world else [])
+        self._prepared: dict[str, tuple[Path, dict, bool]] = {}
+
+    def prepared(self, stage: dict) -> tuple[Path, dict, bool]:
+        """Notebook, merged parameters, and whether it takes the run context."""
+        n = stage["notebook"]
+        if n not in self._prepared:
+            nb = _notebook(stage)
+            declared = self.state.declared(nb)
+            if declared is None:
+                declared = list(notebook_parameters(nb))
+                self.state.remember_declared(nb, declared)
+            nb, params = stage_params(stage, self.common, declared=set(declared))
+            self._prepared[n] = (nb, params, "run_context" in declared)
+        return self._prepared[n]
+
+    def context(self, stage: dict, params: dict) -> dict:
+        """The run block for a stage that takes it: the params of the stages it is made from as
+        they last ran (so a stage left stale by ``--only`` is stated with the params of its outputs)."""
+        from .runinfo import run_context, stage_params_digest
+
+        digests = {}
+        for n in closure(stage["notebook"], self.needs):
+            recorded = (self.state.stages.get(n) or {}).get("own_params")
+            digests[n] = recorded or stage_params_digest(self.prepared_by_name(n)[1])
+        digests[stage["notebook"]] = stage_params_digest(params)
+        return run_context(self.cfg, digests, reference=params.get("reference_release"))
+
+    def prepared_by_name(self, name: str) -> tuple[Path, dict, bool]:
+        return self.prepared(next(s for s in self.cfg.get("stages") or [] if s["notebook"] == name))
+
+    def key(self, stage: dict, needs: list[str]):
+        """The stage's key and the parameters it runs with."""
+        from .runinfo import stage_params_digest
+        from .stages import stage_key
+
+        nb, params, takes_context = self.prepared(stage)
+        run_params = {**params, "run_context": self.context(stage, params)} if takes_context else params
+        k = stage_key(nb, run_params, code=self.code, env=self.env, inputs=self.fp.inputs(params),
+                      needs={n: self.state.key_of(n) for n in needs})
+        k.own_params = stage_params_digest(params)
+        return k, run_params
+
+    def scan(self) -> dict:
+        from .stages import scan
+
+        return scan(self.out_root, self.exclude)
+
+
+def _report_key(planner: Planner) -> str:
+    from .runinfo import digest
+
+    return digest({"code": planner.code,
+                   "stages": {n: s.get("key") for n, s in sorted(planner.state.stages.items()) if n != REPORT}})
+
+
+def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = None, force: bool = False) -> int:
+    """Run the stages of ``params_file`` that are stale (all with ``force``); returns an exit code.
+
+    Bad params raise :class:`InputError` (one line, naming the file and field). The whole run holds
+    the lock of its output folder (:func:`resti_lib.lock.run_lock`): a second run on the same output
+    folder stops at once with a :class:`~resti_lib.errors.BusyError`.
     """
     from .lock import run_lock
 
+    t_start = time.perf_counter()
+    params_file = params_file or paths.PARAMS / "default.yaml"
     cfg = load_params(params_file)
     check_stages(cfg, params_file)
     with run_lock(paths.resolve(cfg.get("output_dir") or "outputs")):
-        return _run(cfg, only=only, jobs=jobs)
+        return _run(cfg, only=only, jobs=jobs, force=force, t_start=t_start)
 
 
-def _run(cfg: dict, *, only=None, jobs: int | None = None) -> int:
+def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float) -> int:
+    from tqdm.auto import tqdm
+
     stages = cfg.get("stages") or []
     common = {k: v for k, v in cfg.items() if k != "stages"}
+    selected = match_only(stages, list(only)) if only is not None else None
     ensure_world(cfg)
     problems = missing_inputs(cfg) if "legacy_benchmark" in cfg else []
     if problems:
         print("resti run: the params name inputs that are missing or wrong:\n  - " + "\n  - ".join(problems),
               file=sys.stderr)
         return 2
-    if only:
-        stages = [s for s in stages if s["notebook"] in only or s["notebook"].split("_", 1)[-1] in only]
-        if not stages:
-            print(f"resti run: no stage matches {only}", file=sys.stderr)
-            return 2
-    else:  # on-demand stages (e.g. the re-optioned public release) run only when named
-        stages = [s for s in stages if not s.get("on_demand")]
-    jobs = jobs or cfg.get("jobs") or os.cpu_count() or 1
-    t0 = time.perf_counter()
-    # stages are grouped into waves: stages of one wave are independent and run in parallel
-    waves: dict[int, list[dict]] = {}
-    for s in stages:
-        waves.setdefault(stage_wave(s, common), []).append(s)
+    waves, needs = plan(stages, common)
+    if selected is None:
+        candidates = [s["notebook"] for s in stages if not s.get("on_demand")]
+        forced = set(candidates) if force else set()
+    else:
+        after = downstream(selected, needs, stages)
+        candidates = selected + after
+        forced = set(candidates) if force else set(selected)
+    by_name = {s["notebook"]: s for s in stages}
     out_root = paths.resolve(cfg.get("output_dir") or "outputs")
+    planner = Planner(cfg, common, out_root, needs)
+    jobs = jobs or cfg.get("jobs") or os.cpu_count() or 1
     nb_dir, html_dir = out_root / "notebooks", out_root / "report" / "notebooks"
-    bar = tqdm(total=len(stages), desc="notebooks", unit="nb", file=sys.stderr)
-    runs = []
+    ran, skipped, seconds = [], [], {}
+    bar = None
     try:
-        for w in sorted(waves):
-            prepared = [stage_params(s, common) for s in waves[w]]
-            with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(prepared)))) as ex:
-                futures = [ex.submit(run_notebook, nb, p, out_dir=nb_dir, html_dir=html_dir) for nb, p in prepared]
-                for f in futures:
-                    r = f.result()
-                    runs.append(r)
+        for w in sorted({waves[n] for n in candidates}):
+            wave = [n for n in candidates if waves[n] == w]
+            current = planner.scan()
+            keys, run_params, todo = {}, {}, []
+            for n in wave:
+                keys[n], run_params[n] = planner.key(by_name[n], needs[n])
+                reason = "forced" if n in forced else planner.state.stale_reason(n, keys[n], current)
+                (todo if reason else skipped).append(n)
+            if not todo:
+                continue
+            if bar is None:
+                bar = tqdm(total=len(todo), desc="notebooks", unit="nb", file=sys.stderr)
+            else:
+                bar.total += len(todo)
+                bar.refresh()
+            failed = None
+            with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as ex:
+                futures = {n: ex.submit(run_notebook, planner.prepared(by_name[n])[0], run_params[n], out_dir=nb_dir,
+                                        html_dir=html_dir) for n in todo}
+                for n, f in futures.items():
+                    try:
+                        r = f.result()
+                    except NotebookError as e:
+                        failed = failed or e
+                        planner.state.forget(n)
+                        continue
+                    seconds[n] = r.seconds
+                    ran.append(n)
                     bar.update(1)
                     bar.set_postfix_str(f"{r.name} {r.seconds:.1f}s")
+            done = [n for n in todo if n in seconds]
+            planner.state.record(done, {n: {**keys[n].parts(), "own_params": keys[n].own_params} for n in done},
+                                 seconds, current, planner.scan())
+            planner.fp.forget_outputs()
+            planner.state.save()
+            if failed:
+                raise failed
     except NotebookError as e:
-        bar.close()
+        if bar is not None:
+            bar.close()
         print(f"resti run: {e}", file=sys.stderr)
         return 1
-    bar.close()
+    if bar is not None:
+        bar.close()
+    index = _write_report(planner, out_root, force=force or bool(ran))
+    _warn_stale(planner, stages, candidates, needs)
+    print(summary(out_root, ran=ran, skipped=skipped, seconds=time.perf_counter() - t_start, index=index))
+    return 0
+
+
+def _write_report(planner: Planner, out_root: Path, *, force: bool) -> Path:
+    """The index page, rewritten when a stage ran or when it is stale."""
+    index = out_root / "report" / "index.html"
+    key = _report_key(planner)
+    old = planner.state.stages.get(REPORT, {})
+    current = planner.scan()
+    if not force and index.exists() and old.get("key") == key and not planner.state.changed_products(REPORT, current):
+        return index
     from .report import write_index
 
-    index = write_index(out_root)
-    print(f"resti run: {len(runs)} notebooks in {time.perf_counter() - t0:.1f}s; report: {index}")
-    return 0
+    write_index(out_root, products=set(planner.state.data["products"]))
+    planner.state.record([REPORT], {REPORT: {"key": key}}, {}, current, planner.scan())
+    planner.state.save()
+    return index
+
+
+def _warn_stale(planner: Planner, stages: list[dict], candidates: list[str], needs: dict) -> None:
+    """Name the stages left stale by ``--only`` (their outputs predate their params or code)."""
+    current = planner.scan()
+    left = []
+    for s in stages:
+        n = s["notebook"]
+        if n in candidates or s.get("on_demand"):
+            continue
+        reason = planner.state.stale_reason(n, planner.key(s, needs[n])[0], current)
+        if reason:
+            left.append(f"{n} ({reason})")
+    if left:
+        print("resti run: warning: stale stages not run: " + "; ".join(left)
+              + ". `resti run` (or `make report`) refreshes them and what depends on them.", file=sys.stderr)
+
+
+# ------------------------------------------------------------------------------------ summary
+
+def _read_json(p: Path):
+    import json
+
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _significant(csv_path: Path, *, skip=()) -> list[dict]:
+    import csv
+
+    if not csv_path.exists():
+        return []
+    with open(csv_path, encoding="utf-8", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r.get("significant") == "True" and r.get("attack") not in skip]
+    return sorted(rows, key=lambda r: -float(r.get("accuracy") or 0))
+
+
+def _rel_to_cwd(p: Path) -> str:
+    try:
+        return os.path.relpath(p)
+    except ValueError:
+        return str(p)
+
+
+def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: float, index: Path) -> str:
+    """The closing lines of a run: what ran, the release counts, verify, significant attacks and
+    where to look next."""
+    lines = [f"resti run: {len(ran)} stage(s) run, {len(skipped)} up to date, {seconds:.1f} s"
+             + (f" ({', '.join(ran)})" if ran else "")]
+    rel = out_root / "release"
+    meta = _read_json(rel / "release.json")
+    val = _read_json(rel / "validation.json")
+    if meta:
+        c = meta.get("counts", {})
+        inp = (meta.get("run") or {}).get("input") or {}
+        kind = (f"synthetic mini-world, seed {inp.get('seed')}" if inp.get("synthetic")
+                else "real data" if inp else "input not recorded")
+        lines.append(f"  release: {c.get('original', 0):,} legacy rows ({kind}) -> {c.get('accepted', 0):,} "
+                     f"accepted + {c.get('excluded', 0):,} excluded; verify "
+                     + ("PASSED" if val and val.get("passed") else "FAILED" if val else "not run"))
+    tables = out_root / "tables"
+    ours = _significant(tables / "attacks_release.csv", skip=("label_prior",))
+    prior = _significant(tables / "attacks_release.csv") if not ours else []
+    if (tables / "attacks_release.csv").exists():
+        lines.append(f"  blind attacks on our release: {len(ours)} Holm-significant"
+                     + (" (label priors aside: " + ", ".join(f"{r['task']}/{r['source']}" for r in prior) + ")"
+                        if prior else ""))
+    ref = _significant(tables / "reference_attacks.csv")
+    if (tables / "reference_attacks.csv").exists():
+        top = "; ".join(f"{r['task']}/{r['source']} {r['attack']} {float(r['accuracy']):.1%}" for r in ref[:4])
+        lines.append(f"  blind attacks on the reference release: {len(ref)} Holm-significant"
+                     + (f", strongest: {top}" if ref else ""))
+    lines.append(f"  report: {_rel_to_cwd(index)}  (release: {_rel_to_cwd(rel)}, tables: {_rel_to_cwd(tables)})")
+    return "\n".join(lines)

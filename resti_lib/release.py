@@ -118,10 +118,15 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
     }
 
 
-def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
-    """The ``release.json`` object of an assembled release."""
-    return {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
+def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None
+                 ) -> dict:
+    """The ``release.json`` object of an assembled release; ``context``: the run that made it, under
+    ``run`` (:func:`resti_lib.runinfo.run_context`: input, params digest, code and package versions)."""
+    meta = {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
             **count_fields(accepted, excluded), "artifacts": artifacts}
+    if context:
+        meta["run"] = context
+    return meta
 
 
 # ------------------------------------------------------------------------------ the release writer
@@ -145,9 +150,14 @@ class ReleaseStage:
         """``{name: {"bytes", "sha256"}}`` of files already written."""
         return {n: dict(self.digests[n]) for n in names}
 
-    def verify(self, *, legacy_keys: list[str] | None = None) -> dict:
-        """Verify the staged release and write ``validation.json``; returns the validation object."""
-        validation = verify_release(load_release(self.dir, strict=False), legacy_keys=legacy_keys)
+    def verify(self, *, legacy_keys: list[str] | None = None, meta: dict | None = None) -> dict:
+        """Verify the staged release and write ``validation.json``; returns the validation object.
+        ``meta``: the ``release.json`` that :meth:`seal` will write (written after this file, so its
+        counts are checked from here rather than reported as absent)."""
+        rel = load_release(self.dir, strict=False)
+        if meta is not None and rel.meta is None:
+            rel.meta = meta
+        validation = verify_release(rel, legacy_keys=legacy_keys)
         self.write("validation.json", write_json_bytes(validation))
         return validation
 
@@ -172,11 +182,11 @@ def release_stage(out_dir: str | os.PathLike, *, inputs=()):
 
 
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, inputs=()) -> dict:
+                  out_dir: str | Path, *, inputs=(), context: dict | None = None) -> dict:
     """Write the release atomically; returns the validation object. The rows carry the options the
     task runs built through the option stage (:mod:`resti_lib.options.stage`); they ship unchanged.
     ``inputs``: paths the release is made from (the release folder may not be one of them, nor hold
-    one)."""
+    one); ``context``: the run block of ``release.json`` (:func:`resti_lib.runinfo.run_context`)."""
     with release_stage(out_dir, inputs=inputs) as st:
         check_invariants(legacy, accepted, excluded)
         order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
@@ -187,19 +197,22 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
         st.write("resti.parquet", rows_to_parquet_bytes(accepted))
         st.write("excluded.jsonl", jsonl_text(excluded, sort_keys=True).encode("utf-8"))
         st.write("provenance.parquet", _parquet_bytes(provenance.reset_index(drop=True)))
-        validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]))
+        validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]),
+                               meta=release_meta(accepted, excluded, {}, context=context))
         if not validation["passed"]:
             raise InvariantError(f"the assembled release fails verify: {failing_checks(validation)}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
-        st.seal(release_meta(accepted, excluded, st.artifacts(names)), names)
+        st.seal(release_meta(accepted, excluded, st.artifacts(names), context=context), names)
     return validation
 
 
-def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path) -> dict:
+def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path, *,
+             context: dict | None = None) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
-    return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir])
+    return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir],
+                         context=context)
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

@@ -1,101 +1,360 @@
-"""The HTML audit report index: links every rendered notebook, table and figure under ``outputs/``.
+"""The HTML audit report: ``<output_dir>/report/index.html``.
 
-The index uses relative links only, so it opens from disk in a browser.
+The page opens with what the run was made from (input, params digest, code and package versions:
+:mod:`resti_lib.runinfo`), then the headline (our release's counts, verdict shares and defect
+categories; the answer-interface audit of the reference release, its significant leaks first; the
+self-test, labelled synthetic), the figures in registry order (:data:`resti_lib.figures.FIGURES`)
+at full width, the tables of the report's text on the page and every other table linked by
+section, the rendered notebooks and the release files. Links are relative: it opens from disk,
+offline (no script, no remote resource).
 """
 
 from __future__ import annotations
 
 import html
+import json
 import os
 from pathlib import Path
 
+import pandas as pd
+
 from . import paths
-from .io.benchmark import atomic_write_bytes
+from .figures import ordered_figures
+from .io.files import atomic_write_bytes
+from .tables import percent, to_html
 
 CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
-padding:0 1em;color:#222}
-h1{font-size:1.6em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #ddd}
-table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #ccc;padding:.2em .5em}
-.figs{display:flex;flex-wrap:wrap;gap:1em}.figs figure{margin:0;max-width:520px}
-.figs img{max-width:100%;border:1px solid #eee}figcaption{font-size:.8em;color:#555}
+*{box-sizing:border-box}
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1180px;margin:0 auto;
+padding:1em 1.2em 3em;color:#222;line-height:1.45;overflow-wrap:break-word}
+h1{font-size:1.7em;margin:.3em 0}h2{font-size:1.3em;margin-top:2em;border-bottom:1px solid #ddd}
+h3{font-size:1.05em;margin:1.4em 0 .4em}
+a{color:#1a5e9a}code{font-size:.9em}
+dl.context{display:grid;grid-template-columns:max-content 1fr;gap:.15em 1em;margin:.6em 0;font-size:.9em}
+dl.context dt{font-weight:600;color:#444}dl.context dd{margin:0}
+.banner{padding:.6em .9em;border-radius:4px;margin:.8em 0;font-size:.95em}
+.banner.synthetic{background:#fff4e0;border:1px solid #f0b45a}
+.banner.real{background:#e8f3ea;border:1px solid #7fbf8e}
+.selftest{background:#fafafa;border:1px dashed #bbb;padding:.2em 1em 1em;margin-top:1.5em}
+.label{display:inline-block;font-size:.75em;font-weight:600;padding:.05em .5em;border-radius:3px;
+vertical-align:middle;margin-left:.4em}
+.label.synthetic{background:#f0b45a;color:#3a2500}.label.real{background:#7fbf8e;color:#0e2e16}
+nav.toc{font-size:.9em;margin:.8em 0}nav.toc a{margin-right:1em}
+.table-wrap{max-width:100%;overflow-x:auto}
+table.resti-table{border-collapse:collapse;font-size:.82em;margin:.3em 0 .2em;max-width:100%}
+table.resti-table td,table.resti-table th{border:1px solid #d0d0d0;padding:.2em .45em;vertical-align:top;
+text-align:left}
+table.resti-table th{background:#f3f3f3}
+p.caption{font-size:.88em;color:#444;margin:.8em 0 .2em}p.more{font-size:.8em;color:#666;margin:0}
+figure{margin:1.2em 0 2em;max-width:100%}figure img{display:block;max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:.88em;color:#444;margin-top:.3em}figcaption .file{color:#888;font-size:.9em}
+ul.files{columns:2;font-size:.88em}ul.files li{break-inside:avoid}
 """
+
+# Tables shown on the page, by section: (file stem under tables/, caption). Every other table is
+# linked under the section of its notebook.
+SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
+    ("Coverage and verdicts", (
+        ("coverage_by_task", "Accepted and excluded questions by task and source."),
+        ("verdicts", "Verdicts by task: retained, corrected, re-contracted, excluded."),
+    )),
+    ("Legacy diagnosis", (
+        ("key_detail_breakdown", ("Keyed candidate against Answer Detail: why they differ (structured records, "
+                                  "scalars beyond rounding, incompatible formats, coarser rounding).")),
+        ("question_layer_defects", "Question-layer defects by task (rows)."),
+        ("source_layer_defects", "Source-layer defects by task (rows)."),
+        ("answer_layer_defects", "Answer-layer defects by task (rows)."),
+    )),
+    ("Exclusions", (
+        ("exclusion_classes", ("Exclusions by class: recoverable (ambiguous or unmatched referents) and "
+                               "structural (defective task statements).")),
+        ("exclusion_reasons", "Exclusion reasons by task (a row can carry several)."),
+    )),
+    ("Answer interface", (
+        ("legacy_scalar_attacks", ("Blind attacks pooled over every legacy row with five scalar candidates "
+                                   "(all tasks together; e.g. the median pick).")),
+        ("attacks_before_after", ("Strongest blind attack per task, legacy options (before) and our release "
+                                  "(after).")),
+    )),
+    ("Reference release (ReSTI v5, real data)", (
+        ("reference_comparison", "Accepted and excluded per task: our release beside the reference."),
+        ("reference_by_source", "Reference release: accepted and excluded per task and source."),
+        ("reference_exclusion_reasons", "Reference release: exclusion reasons by task."),
+        ("reference_strongest_attacks", "Reference release: strongest blind attack per task."),
+    )),
+    ("Self-test on the mini-world (synthetic)", (
+        ("selftest_verdicts", "Expected verdict (generator manifest) against the audit's verdict."),
+        ("selftest_values", "Accepted rows whose answer equals the generator's true value."),
+    )),
+)
+HEADLINE_TABLES = ("defect_categories", "selftest_defect_recall")
 
 
 def _rel(target: Path, base: Path) -> str:
     return Path(os.path.relpath(target, base)).as_posix()
 
 
-def _section(title: str, items: list[str]) -> str:
+def _e(x) -> str:
+    return html.escape(str(x))
+
+
+def _read_csv(p: Path) -> pd.DataFrame | None:
+    if not p.exists():
+        return None
+    try:
+        return pd.read_csv(p)
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return None
+
+
+def _read_json(p: Path):
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+# ------------------------------------------------------------------------------------ header
+
+def header_html(context: dict | None) -> str:
+    """What the run was made from, and a banner that says whether the numbers are on real data."""
+    if not context:
+        return ("<div class=\"banner\">No run context recorded (release.json has no <code>run</code> block): "
+                "rerun <code>resti run</code>.</div>")
+    inp = context.get("input") or {}
+    rows = []
+    if inp.get("synthetic"):
+        banner = ("<div class=\"banner synthetic\"><b>Input: the synthetic mini-world</b> (seed "
+                  f"{_e(inp.get('seed'))}), generated by resti with known injected defects. The counts, verdicts "
+                  "and self-test below describe this generated data, not STI-Bench. The answer-interface audit "
+                  "of the reference release is the one result on real data.</div>")
+        where = f"{_e(inp.get('seed'))}, <code>{_e(inp.get('world_dir'))}</code>"
+        rows.append(("Input", f"mini-world <span class=\"label synthetic\">synthetic</span> seed {where}"))
+    else:
+        banner = "<div class=\"banner real\"><b>Input: real data</b> (paths below).</div>"
+        listed = "<br>".join(f"{_e(k)}: <code>{_e(v)}</code>" for k, v in inp.items()
+                             if k not in ("kind", "synthetic"))
+        rows.append(("Input", "real data <span class=\"label real\">real</span><br>" + listed))
+    if context.get("reference_release"):
+        rows.append(("Reference release", f"<code>{_e(context['reference_release'])}</code>"))
+    rows.append(("Params digest", f"<code>sha256:{_e(context.get('params_digest', ''))}</code>"))
+    code = context.get("code") or {}
+    code_txt = " · ".join(x for x in (
+        f"git <code>{_e(code['git'])}</code>" if code.get("git") else "",
+        f"commit <code>{_e(code['commit'][:12])}</code>" if code.get("commit") else "",
+        _e(code.get("package", ""))) if x)
+    rows.append(("Code version", code_txt))
+    pk = context.get("packages") or {}
+    rows.append(("Packages", " · ".join(f"{_e(k)} {_e(v)}" for k, v in pk.items())))
+    if context.get("date"):
+        rows.append(("Date", f"{_e(context['date'])} (SOURCE_DATE_EPOCH)"))
+    dl = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in rows)
+    return banner + f"<dl class=\"context\">{dl}</dl>"
+
+
+# ---------------------------------------------------------------------------------- headline
+
+def _verdict_shares(tables: Path) -> str:
+    v = _read_csv(tables / "verdicts.csv")
+    if v is None or "task" not in v:
+        return ""
+    total = v[v["task"] == "Total"]
+    if total.empty:
+        return ""
+    t = total.iloc[0]
+    cols = [c for c in ("retained", "corrected", "re-contracted", "excluded") if c in v.columns]
+    n = sum(int(t[c]) for c in cols)
+    df = pd.DataFrame([{"verdict": c, "rows": int(t[c]), "share": int(t[c]) / n if n else 0.0} for c in cols])
+    return to_html(df, caption="Verdict shares (every legacy row ends in exactly one verdict).")
+
+
+def _leaks(table: pd.DataFrame | None, what: str) -> str:
+    if table is None or "significant" not in table:
+        return f"<p>No attack table for {what}.</p>"
+    sig = table[table["significant"].astype(str) == "True"].copy()
+    cells = table[["task", "source"]].drop_duplicates()
+    n_sig_cells = len(sig[["task", "source"]].drop_duplicates())
+    head = (f"<p><b>{len(sig)}</b> of {len(table):,} attack rows are Holm-significant, in {n_sig_cells} of "
+            f"{len(cells)} task/source cells (source ALL pools a task).</p>")
+    if sig.empty:
+        return head
+    sig = sig.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
+    shown = pd.DataFrame({"task": sig["task"], "source": sig["source"], "attack": sig["attack"],
+                          "hits / picked": [f"{int(h)}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
+                          "accuracy": sig["accuracy"].astype(float), "p_value": sig["p_value"].astype(float)})
+    return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%).",
+                          max_rows=25)
+
+
+def headline_html(out_root: Path) -> str:
+    tables = out_root / "tables"
+    rel = out_root / "release"
+    parts = ["<h3>Our release</h3>"]
+    meta = _read_json(rel / "release.json")
+    val = _read_json(rel / "validation.json")
+    synthetic = bool(((meta or {}).get("run") or {}).get("input", {}).get("synthetic"))
+    tag = "<span class=\"label synthetic\">synthetic input</span>" if synthetic else ""
+    if meta:
+        c = meta.get("counts", {})
+        verify = "PASSED" if val and val.get("passed") else "FAILED" if val else "not run"
+        acc, tot = c.get("accepted", 0), c.get("original", 0)
+        parts[0] = f"<h3>Our release {tag}</h3>"
+        parts.append(f"<p><b>{tot:,}</b> legacy questions &rarr; <b>{acc:,}</b> accepted ({percent(acc / tot if tot else 0)}) "
+                     f"and <b>{c.get('excluded', 0):,}</b> excluded with reasons; <code>resti verify</code>: "
+                     f"<b>{verify}</b>.</p>")
+    else:
+        parts.append("<p>No release in this output folder yet.</p>")
+    parts.append(_verdict_shares(tables))
+    cats = _read_csv(tables / "defect_categories.csv")
+    if cats is not None:
+        total = int(cats["reports"].sum()) if "reports" in cats else 0
+        parts.append(to_html(cats, caption=f"Defect categories: {total} defect reports (one row can report several;"
+                                           " shares of the reports)."))
+    ours = _read_csv(tables / "attacks_release.csv")
+    if ours is not None:
+        parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release"))
+    ref = _read_csv(tables / "reference_attacks.csv")
+    if ref is None:
+        ref = _read_csv(out_root / "answer_interface" / "attacks_resti_v5.csv")
+    parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
+    parts.append(_leaks(ref, "the reference release") if ref is not None else
+                 "<p>No reference release was found (<code>reference_release</code> in params/release.yaml).</p>")
+    recall = _read_csv(tables / "selftest_defect_recall.csv")
+    if recall is not None:
+        parts.append("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">"
+                     "synthetic</span></h3><p>What the audit found against what the generator injected (its "
+                     "manifest). This checks the audit on generated data with known defects; it is not a "
+                     "result on STI-Bench.</p>" + to_html(recall, caption="Defect recall and precision against "
+                                                                           "the generator's manifest.") + "</div>")
+    return "<section id=\"headline\"><h2>Headline</h2>" + "".join(p for p in parts if p) + "</section>"
+
+
+# --------------------------------------------------------------------------- figures, tables
+
+def _current(p: Path, out_root: Path, products: set | None) -> bool:
+    """Is ``p`` a file of this run (a recorded stage product), or is every file listed?"""
+    return products is None or p.relative_to(out_root).as_posix() in products
+
+
+def figures_html(out_root: Path, report_dir: Path, products: set | None = None) -> str:
+    items, section = [], None
+    for p, spec in ordered_figures(out_root / "figures"):
+        if not _current(p, out_root, products):
+            continue
+        sec = spec.section if spec else "Other figures"
+        if sec != section:
+            items.append(f"<h3>{_e(sec)}</h3>")
+            section = sec
+        src = _rel(p, report_dir)
+        cap = spec.caption if spec else p.stem
+        items.append(f"<figure id=\"fig-{_e(p.stem)}\"><a href=\"{src}\" title=\"open full size\">"
+                     f"<img src=\"{src}\" alt=\"{_e(cap)}\" loading=\"lazy\"></a><figcaption>{_e(cap)} "
+                     f"<span class=\"file\">({_e(p.name)}; click to open full size)</span></figcaption></figure>")
     if not items:
         return ""
-    return f"<h2>{html.escape(title)}</h2>\n" + "\n".join(items)
+    return "<section id=\"figures\"><h2>Figures</h2>" + "".join(items) + "</section>"
 
 
-def summary_section(out_root: Path) -> str:
-    """Headline numbers and the key tables of the release, when the run produced them."""
-    import json
+def _table_links(p: Path, report_dir: Path) -> str:
+    links = [f'<a href="{_rel(p, report_dir)}">{_e(p.stem)}</a>']
+    links += [f'<a href="{_rel(q, report_dir)}">{q.suffix[1:]}</a>' for q in (p.with_suffix(".csv"),
+                                                                               p.with_suffix(".tex")) if q.exists()]
+    return " · ".join(links)
 
-    import pandas as pd
 
-    parts = []
-    meta_p = out_root / "release" / "release.json"
-    if meta_p.exists():
-        meta = json.loads(meta_p.read_text(encoding="utf-8"))
-        c = meta.get("counts", {})
-        letters = " ".join(f"{k} {v}" for k, v in meta.get("answer_letters", {}).items())
-        parts.append(f"<p><b>{c.get('original', 0):,}</b> legacy questions &rarr; <b>{c.get('accepted', 0):,}</b> "
-                     f"accepted and <b>{c.get('excluded', 0):,}</b> excluded with reasons. "
-                     f"Answer letters: {html.escape(letters)}.</p>")
-    for stem, caption in (("coverage_by_task", "Accepted and excluded by task"),
-                          ("verdicts", "Verdicts"), ("attacks_before_after", "Option-only attacks, before and after"),
-                          ("selftest_defect_recall", "Self-test: defects found against defects injected")):
-        csv = out_root / "tables" / f"{stem}.csv"
-        if csv.exists():
-            df = pd.read_csv(csv)
-            parts.append(f"<h3>{html.escape(caption)}</h3>" + df.to_html(index=False, border=0, na_rep="",
-                                                                           float_format=lambda x: f"{x:.3g}"))
-    return _section("Summary", parts) if parts else ""
+def _link_section(p: Path, out_root: Path) -> str:
+    rel = p.relative_to(out_root)
+    top = rel.parts[0]
+    if top == "answer_interface":
+        return "Answer interface (notebook 00)"
+    if top == "reoption":
+        return "Re-optioned reference release (notebook 90)"
+    stem = p.stem
+    if stem[:2].isdigit() and "_" in stem:
+        nb = stem.split("_", 2)
+        return f"Notebook {nb[0]} · {nb[1]}"
+    if stem.startswith("selftest_"):
+        return "Self-test (synthetic)"
+    if stem.startswith("reference_"):
+        return "Reference release"
+    if stem.startswith("attacks_"):
+        return "Answer interface"
+    return "Release and diagnosis"
+
+
+def tables_html(out_root: Path, report_dir: Path, products: set | None = None) -> str:
+    tables = out_root / "tables"
+    shown, parts = set(HEADLINE_TABLES), []
+    for section, entries in SHOWN_TABLES:
+        sec = []
+        for stem, caption in entries:
+            df = _read_csv(tables / f"{stem}.csv")
+            if df is None or not _current(tables / f"{stem}.csv", out_root, products):
+                continue
+            shown.add(stem)
+            md = tables / f"{stem}.md"
+            sec.append(to_html(df, caption=caption, max_rows=60)
+                       + f"<p class=\"more\">{_table_links(md, report_dir)}</p>")
+        if sec:
+            parts.append(f"<h3>{_e(section)}</h3>" + "".join(sec))
+    groups: dict[str, list[str]] = {}
+    for p in sorted(out_root.glob("**/*.md")):
+        top = p.relative_to(out_root).parts[0]
+        if top in ("report", "miniworld", "notebooks", ".resti") or (p.parent == tables and p.stem in shown):
+            continue
+        if not _current(p, out_root, products):
+            continue
+        groups.setdefault(_link_section(p, out_root), []).append(f"<li>{_table_links(p, report_dir)}</li>")
+    if groups:
+        parts.append("<h3>Every other table (markdown · csv · tex), by section</h3>")
+        for sec in sorted(groups, key=lambda s: (not s.startswith("Release"), s)):
+            parts.append(f"<h4>{_e(sec)}</h4><ul class=\"files\">" + "".join(groups[sec]) + "</ul>")
+    if not parts:
+        return ""
+    return "<section id=\"tables\"><h2>Tables</h2>" + "".join(parts) + "</section>"
+
+
+def notebooks_html(report_dir: Path, products: set | None = None) -> str:
+    out_root = report_dir.parent
+    items = [f'<li><a href="{_rel(p, report_dir)}">{_e(p.stem)}</a></li>'
+             for p in sorted((report_dir / "notebooks").glob("*.html")) if _current(p, out_root, products)]
+    if not items:
+        return ""
+    return ("<section id=\"notebooks\"><h2>Rendered notebooks</h2><ul class=\"files\">" + "".join(items)
+            + "</ul></section>")
+
+
+def release_html(out_root: Path, report_dir: Path) -> str:
+    rel_dir = out_root / "release"
+    if not rel_dir.exists():
+        return ""
+    items = [f'<li><a href="{_rel(p, report_dir)}">{_e(p.name)}</a> ({p.stat().st_size:,} bytes)</li>'
+             for p in sorted(rel_dir.iterdir()) if p.is_file() and not p.name.startswith(".")]
+    return "<section id=\"release\"><h2>Release files</h2><ul class=\"files\">" + "".join(items) + "</ul></section>"
 
 
 def write_index(out_root: Path | None = None, *, title: str = "resti audit report",
-                summary_html: str | None = None) -> Path:
-    """Write ``outputs/report/index.html`` for whatever the run produced."""
+                context: dict | None = None, products: set | None = None) -> Path:
+    """Write ``<out_root>/report/index.html`` for whatever the run produced. ``context``: the run
+    block (:func:`resti_lib.runinfo.run_context`); default: the one in ``release/release.json``.
+    ``products``: paths (relative to ``out_root``) the stages of this output folder wrote; figures,
+    tables and notebooks not among them (left by older runs) are not listed. Default: all."""
     out_root = Path(out_root or paths.OUTPUTS)
-    if summary_html is None:
-        summary_html = summary_section(out_root)
     report_dir = out_root / "report"
     index = report_dir / "index.html"
-    nb_items = []
-    for p in sorted((report_dir / "notebooks").glob("*.html")):
-        nb_items.append(f'<li><a href="{_rel(p, report_dir)}">{html.escape(p.stem)}</a></li>')
-    table_items = []
-    for p in sorted(out_root.glob("**/*.md")):
-        if "report" in p.relative_to(out_root).parts[:1] or "miniworld" in p.parts:
-            continue
-        csv, tex = p.with_suffix(".csv"), p.with_suffix(".tex")
-        extra = "".join(f' · <a href="{_rel(q, report_dir)}">{q.suffix[1:]}</a>' for q in (csv, tex)
-                        if q.exists())
-        table_items.append(f'<li><a href="{_rel(p, report_dir)}">{html.escape(str(p.relative_to(out_root)))}'
-                           f"</a>{extra}</li>")
-    fig_items = []
-    for p in sorted((out_root / "figures").glob("*.png")):
-        src = _rel(p, report_dir)
-        fig_items.append(f'<figure><a href="{src}"><img src="{src}" alt="{html.escape(p.stem)}"></a>'
-                         f"<figcaption>{html.escape(p.name)}</figcaption></figure>")
-    release_items = []
-    rel_dir = out_root / "release"
-    if rel_dir.exists():
-        for p in sorted(rel_dir.iterdir()):
-            if p.is_file():
-                release_items.append(f'<li><a href="{_rel(p, report_dir)}">{html.escape(p.name)}</a> '
-                                     f"({p.stat().st_size:,} bytes)</li>")
-    body = [f"<h1>{html.escape(title)}</h1>", summary_html,
-            _section("Rendered notebooks", ["<ul>", *nb_items, "</ul>"] if nb_items else []),
-            _section("Release files", ["<ul>", *release_items, "</ul>"] if release_items else []),
-            _section("Tables (markdown · csv · tex)", ["<ul>", *table_items, "</ul>"] if table_items else []),
-            _section("Figures", ['<div class="figs">', *fig_items, "</div>"] if fig_items else [])]
-    doc = (f"<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
-           f"<style>{CSS}</style></head><body>\n" + "\n".join(b for b in body if b) + "\n</body></html>\n")
+    if context is None:
+        context = ((_read_json(out_root / "release" / "release.json") or {}).get("run"))
+    sections = [headline_html(out_root), figures_html(out_root, report_dir, products),
+                tables_html(out_root, report_dir, products), notebooks_html(report_dir, products),
+                release_html(out_root, report_dir)]
+    ids = [("headline", "Headline"), ("figures", "Figures"), ("tables", "Tables"),
+           ("notebooks", "Notebooks"), ("release", "Release files")]
+    toc = " ".join(f'<a href="#{i}">{t}</a>' for (i, t), s in zip(ids, sections) if s)
+    body = [f"<header id=\"run\"><h1>{_e(title)}</h1>{header_html(context)}</header>",
+            f"<nav class=\"toc\">{toc}</nav>", *sections]
+    doc = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+           "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+           f"<title>{_e(title)}</title><style>{CSS}</style></head><body>\n"
+           + "\n".join(b for b in body if b) + "\n</body></html>\n")
     atomic_write_bytes(index, doc.encode("utf-8"))
     return index

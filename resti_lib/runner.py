@@ -141,16 +141,46 @@ def _failing_cell(executed: Path) -> str:
     return "unknown cell"
 
 
+# The rendered page: JupyterLab's look without the scripts it loads from the network (require.js,
+# MathJax, Mermaid: nothing in our notebooks needs them), so a page opens offline, plus a link back
+# to the report index (pages live in report/notebooks/, the index in report/).
+_HTML_TEMPLATE = """{%- extends 'index.html.j2' -%}
+{%- block html_head_js_requirejs -%}{%- endblock html_head_js_requirejs -%}
+{%- block html_head_js_mathjax -%}{%- endblock html_head_js_mathjax -%}
+{%- block html_head_js_mermaidjs -%}{%- endblock html_head_js_mermaidjs -%}
+{% block extra_css %}<style>
+.resti-nav{max-width:1100px;margin:0 auto;padding:.6em 1em;font-family:system-ui,sans-serif;font-size:14px}
+.resti-nav a{color:#1a5e9a}
+.jp-RenderedImage img{max-width:100%;height:auto}
+</style>{% endblock extra_css %}
+{%- block body_header -%}{{ super() }}
+<nav class="resti-nav"><a href="../index.html">&larr; resti audit report (index)</a></nav>
+{%- endblock body_header -%}
+"""
+
+
 def render_html(executed: Path, html_path: Path) -> Path:
+    """Render an executed notebook to a self-contained HTML page (no network resources), linking back
+    to the report index."""
+    from jinja2 import DictLoader
     from nbconvert import HTMLExporter
 
-    exporter = HTMLExporter()
+    from .io.files import atomic_write_bytes
+
+    exporter = HTMLExporter(template_name="lab", extra_loaders=[DictLoader({"resti.html.j2": _HTML_TEMPLATE})],
+                            template_file="resti.html.j2")
     exporter.exclude_input_prompt = True
     exporter.exclude_output_prompt = True
     body, _ = exporter.from_filename(str(executed))
-    html_path.parent.mkdir(parents=True, exist_ok=True)
-    html_path.write_text(body, encoding="utf-8")
+    atomic_write_bytes(html_path, body.encode("utf-8"))
     return html_path
+
+
+# Kernel settings for executed notebooks: its log at CRITICAL (the kernel warns on every start that
+# it talks over local TCP, and logs the interrupt of its own shutdown), and tables displayed as the
+# report shows them (no index column, shares as percentages: resti_lib.tables.install_display).
+KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL",
+                    "--IPKernelApp.exec_lines=import resti_lib.tables as _rt; _rt.install_display()"]
 
 
 def run_notebook(nb_path: str | Path, params: dict, *, out_dir: Path | None = None,
@@ -168,10 +198,14 @@ def run_notebook(nb_path: str | Path, params: dict, *, out_dir: Path | None = No
     t0 = time.perf_counter()
     try:
         papermill.execute_notebook(str(nb_path), str(executed), parameters=params, kernel_name=KERNEL,
-                                   cwd=str(paths.ROOT), progress_bar=progress, log_output=False)
+                                   cwd=str(paths.ROOT), progress_bar=progress, log_output=False,
+                                   extra_arguments=list(KERNEL_ARGUMENTS))
     except PapermillExecutionError as e:
         raise NotebookError(f"notebook {nb_path.name} failed in {_failing_cell(executed)} "
                             f"(executed copy: {executed})") from e
+    except Exception as e:  # the kernel could not start, died or timed out
+        first = (str(e).strip().splitlines() or [""])[0]
+        raise NotebookError(f"notebook {nb_path.name}: the kernel failed ({type(e).__name__}: {first})") from e
     seconds = time.perf_counter() - t0
     html = render_html(executed, html_dir / (nb_path.stem + ".html"))
     return NotebookRun(nb_path.stem, executed, html, seconds)

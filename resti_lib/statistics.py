@@ -155,3 +155,154 @@ def reference_comparison(ours: dict, reference: dict) -> pd.DataFrame:
                  "reference accepted": reference["accepted_rows"],
                  "reference excluded": reference["excluded_rows"]})
     return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------------ tables of the report's text
+# (key–detail mismatch breakdown, exclusions by class, the pooled legacy attack, a release's
+# per-source counts)
+
+KEY_DETAIL_CLASSES = (
+    ("structured", "structured record (Grounding box or Pose matrix) disagreeing"),
+    ("scalar", "scalar disagreeing beyond rounding"),
+    ("other", "label or trajectory disagreeing"),
+    ("format", "incompatible format (unreadable, other kind or unit dimension)"),
+    ("rounding", "same value, coarser rounding or other spelling (not a defect)"),
+)
+
+
+def key_detail_class(keyed: str, detail: str) -> str:
+    """Why a keyed candidate differs from the Answer Detail (see :data:`KEY_DETAIL_CLASSES`)."""
+    from . import values as V
+    from .errors import InputError
+
+    try:
+        k, d = V.parse(keyed), V.parse(detail)
+    except InputError:
+        return "format"
+    if k.kind != d.kind or (isinstance(k, V.Scalar) and k.dimension != d.dimension):
+        return "format"
+    if V.agree(k, d):
+        return "rounding"
+    if k.kind in ("box", "pose"):
+        return "structured"
+    return "scalar" if k.kind == "scalar" else "other"
+
+
+def key_detail_breakdown(legacy: pd.DataFrame) -> pd.DataFrame:
+    """Legacy rows whose keyed candidate is not the Answer Detail text, by cause: structured records,
+    scalars beyond rounding, other kinds, incompatible formats (these four are the
+    ``key_detail_mismatch`` defect) and same values printed differently (not a defect)."""
+    counts: dict[str, Counter] = {c: Counter() for c, _ in KEY_DETAIL_CLASSES}
+    for r in legacy.to_dict("records"):
+        cands = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
+        keyed, detail = cands.get(r.get("Answer")), r.get("Answer Detail")
+        if keyed is None or detail is None or keyed == detail:
+            continue
+        counts[key_detail_class(str(keyed), str(detail))][str(r.get("Task"))] += 1
+    total = sum(sum(c.values()) for c in counts.values())
+    rows = []
+    for code, label in KEY_DETAIL_CLASSES:
+        c = counts[code]
+        n = sum(c.values())
+        by_task = ", ".join(f"{t} {k}" for t, k in sorted(c.items(), key=lambda kv: (-kv[1], kv[0])))
+        rows.append({"cause": label, "rows": n, "share": n / total if total else 0.0,
+                     "key_detail_mismatch defect": code != "rounding", "by task": by_task})
+    flagged = sum(r["rows"] for r in rows if r["key_detail_mismatch defect"])
+    rows.append({"cause": "all keyed candidates differing from the detail text", "rows": total,
+                 "share": 1.0 if total else 0.0, "key_detail_mismatch defect": None,
+                 "by task": f"{flagged} counted as key_detail_mismatch"})
+    return pd.DataFrame(rows, columns=["cause", "rows", "share", "key_detail_mismatch defect", "by task"])
+
+
+# Exclusion reasons by class (the report: exclusions "concern ambiguous or unmatched referents" —
+# a better description or another frame could recover the row — or "defective task statements").
+RECOVERABLE_REASONS = frozenset({"ambiguous_instance", "grouped_referent", "no_source_instance",
+                                 "not_visible_at_frame", "ambiguous_subject"})
+STRUCTURAL_REASONS = frozenset({"zero_length_interval", "premise_equals_target", "no_dominant_relation",
+                                "undefined_dimension", "invalid_pose_at_time", "malformed_row",
+                                "unsupported_question"})
+
+
+def exclusion_class(codes) -> str:
+    """``recoverable`` when any reason is an ambiguous or unmatched referent, ``structural`` when
+    every reason is a defective statement, ``other`` for codes outside both lists."""
+    codes = set(codes)
+    if codes & RECOVERABLE_REASONS:
+        return "recoverable"
+    if codes and codes <= STRUCTURAL_REASONS:
+        return "structural"
+    return "other"
+
+
+def exclusion_class_table(excluded: list[dict]) -> pd.DataFrame:
+    """Excluded rows by class and task: recoverable (ambiguous or unmatched referents) against
+    structural (defective task statements), with the reason codes of each class."""
+    classes = ("recoverable", "structural", "other")
+    per: dict[str, Counter] = {c: Counter() for c in classes}
+    reasons: dict[str, Counter] = {c: Counter() for c in classes}
+    for r in excluded:
+        codes = list(r.get("reason_codes") or [])
+        c = exclusion_class(codes)
+        per[c][str(r.get("task"))] += 1
+        reasons[c].update(codes)
+    total = sum(sum(c.values()) for c in per.values())
+    rows = []
+    for c in classes:
+        n = sum(per[c].values())
+        if c == "other" and n == 0:
+            continue
+        rows.append({"class": c, "rows": n, "share": n / total if total else 0.0,
+                     "reasons": ", ".join(f"{k} {v}" for k, v in sorted(reasons[c].items(),
+                                                                          key=lambda kv: (-kv[1], kv[0]))),
+                     "by task": ", ".join(f"{t} {k}" for t, k in sorted(per[c].items(),
+                                                                          key=lambda kv: (-kv[1], kv[0])))})
+    return pd.DataFrame(rows, columns=["class", "rows", "share", "reasons", "by task"])
+
+
+SCALAR_POOL = "all scalar rows"
+
+
+def pooled_scalar_attacks(legacy: pd.DataFrame, *, alpha: float = 0.05) -> pd.DataFrame:
+    """Option-only attacks pooled over every legacy row whose five candidates are scalars (all tasks
+    together, as the report's "median pick on the legacy scalar rows"), best first."""
+    from . import values as V
+    from .errors import InputError
+    from .options.attacks import attack_table
+
+    rows = []
+    for r in legacy.to_dict("records"):
+        cands = r.get("Candidates")
+        if not isinstance(cands, dict) or len(cands) != 5:
+            continue
+        try:
+            if not all(isinstance(V.parse(s), V.Scalar) for s in cands.values()):
+                continue
+        except InputError:
+            continue
+        rows.append({**r, "Task": SCALAR_POOL})
+    if not rows:
+        return pd.DataFrame(columns=["attack", "rows", "picked", "hits", "accuracy", "p_value", "significant"])
+    t = attack_table(rows, alpha=alpha)
+    t = t[(t["source"] == "ALL") & (t["picked"] > 0)]
+    t = t.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
+    return (t.rename(columns={"n_rows": "rows"})[["attack", "rows", "picked", "hits", "accuracy", "p_value",
+                                                   "significant"]].reset_index(drop=True))
+
+
+def release_coverage(accepted: pd.DataFrame, excluded: list[dict]) -> pd.DataFrame:
+    """:func:`coverage_table` of any release (e.g. the reference one): accepted and excluded rows
+    per task and source."""
+    recs = [{"task": t, "source": s, "verdict": "accepted"}
+            for t, s in zip(accepted.get("Task", []), accepted.get("Source", []))]
+    recs += [{"task": r.get("task"), "source": r.get("source"), "verdict": "excluded"} for r in excluded]
+    return coverage_table(pd.DataFrame(recs, columns=["task", "source", "verdict"]))
+
+
+def significant_leaks(table: pd.DataFrame) -> pd.DataFrame:
+    """Holm-significant rows of an attack table, strongest first: task, source, attack, hits/picked,
+    accuracy, p-value."""
+    if table is None or len(table) == 0 or "significant" not in table:
+        return pd.DataFrame(columns=["task", "source", "attack", "hits", "picked", "accuracy", "p_value"])
+    sig = table[table["significant"].astype(bool)]
+    sig = sig.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
+    return sig[["task", "source", "attack", "hits", "picked", "accuracy", "p_value"]].reset_index(drop=True)

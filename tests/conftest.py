@@ -46,3 +46,60 @@ def miniworld(tmp_path_factory) -> Path:
     generate(out, seed=0)
     return out
 
+
+
+# ------------------------------------------------------------------ the main job, run once per session
+
+SOURCE_DATE_EPOCH = "1700000000"  # 2023-11-14T22:13:20Z: reruns with it set are byte-identical
+MAIN_RUN_UMASK = 0o002  # not the usual 022: outputs must follow the umask, not a fixed mode
+
+
+def main_params(miniworld: Path, out: Path, *, stage_params: dict | None = None) -> dict:
+    """params/default.yaml pointed at a generated mini-world and an output folder; ``stage_params``
+    replaces the params file of named stages."""
+    import yaml
+
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg.update(world_dir=str(miniworld), legacy_benchmark=str(miniworld / "legacy" / "qa.parquet"),
+               scannet_root=str(miniworld / "scannet" / "scans"), waymo_root=str(miniworld / "waymo"),
+               omni6d_root=str(miniworld / "omni6d"), output_dir=str(out))
+    for s in cfg["stages"]:
+        if stage_params and s["notebook"] in stage_params:
+            s["params"] = str(stage_params[s["notebook"]])
+    return cfg
+
+
+def run_cli(args: list[str], *, umask: int | None = None, cwd=None, env: dict | None = None):
+    """``resti ARGS`` in a subprocess (optionally under ``umask``), with SOURCE_DATE_EPOCH set."""
+    import subprocess
+    import sys
+
+    e = {**os.environ, "SOURCE_DATE_EPOCH": SOURCE_DATE_EPOCH, **(env or {})}
+    pre = (lambda: os.umask(umask)) if umask is not None else None
+    return subprocess.run([sys.executable, "-m", "resti_lib.cli", *args], capture_output=True, text=True,
+                          cwd=cwd or paths.ROOT, env=e, preexec_fn=pre, timeout=1800, check=False)
+
+
+class MainRun:
+    def __init__(self, out: Path, params: Path, cfg: dict, proc):
+        self.out, self.params, self.cfg = out, params, cfg
+        self.returncode, self.stdout, self.stderr = proc.returncode, proc.stdout, proc.stderr
+
+
+@pytest.fixture(scope="session")
+def main_run(miniworld, tmp_path_factory) -> MainRun:
+    """``resti run`` on the default mini-world, once per session (a subprocess under umask 002, with
+    SOURCE_DATE_EPOCH set): the tests of the main job, the report and the browser share it."""
+    import yaml
+
+    from resti_lib.pipeline import _generator_stamp
+
+    (miniworld / ".generator_stamp").write_text(_generator_stamp(0))  # the fixture made it: no regeneration
+    base = tmp_path_factory.mktemp("main_run")
+    out = base / "outputs"
+    cfg = main_params(miniworld, out)
+    params = base / "params.yaml"
+    params.write_text(yaml.safe_dump(cfg))
+    proc = run_cli(["run", "--params", str(params)], umask=MAIN_RUN_UMASK)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return MainRun(out, params, cfg, proc)

@@ -1,33 +1,43 @@
-"""The main job end to end on the mini-world: every notebook through papermill, nothing lost,
-every report link resolves, and a rerun reproduces every release file byte for byte."""
+"""The main job end to end on the mini-world (one run per session, ``main_run``): nothing lost, every
+report link resolves, outputs follow the umask, the terminal shows progress and a summary only,
+a warm rerun does nothing, and editing one task's params reruns that task and what is downstream,
+giving the bytes of a full run."""
 
-import hashlib
 import json
+import re
 import shutil
+import stat
 
+import pandas as pd
 import pytest
 import yaml
 
-from resti_lib import paths
-from resti_lib.pipeline import run
+from resti_lib import TASKS, paths
+from resti_lib import values as V
+from tests.conftest import MAIN_RUN_UMASK, main_params, run_cli
 from tests.test_report import assert_links_resolve
 
 pytestmark = pytest.mark.notebook
 
+RELEASE_FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json",
+                 "release.json", "SHA256SUMS")
 
-def _digests(folder):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir()) if p.is_file()}
+
+def _ran(stdout: str) -> set[str]:
+    """Stage names of the summary line ``resti run: N stage(s) run, ... (a, b)``."""
+    m = re.search(r"resti run: (\d+) stage\(s\) run, (\d+) up to date, [\d.]+ s(?: \(([^)]*)\))?", stdout)
+    assert m, stdout
+    names = {x.strip() for x in (m.group(3) or "").split(",") if x.strip()}
+    assert len(names) == int(m.group(1))
+    return names
 
 
-def test_main_job_end_to_end_and_byte_identical_rerun(miniworld, tmp_path):
-    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
-    out = tmp_path / "outputs"
-    cfg.update(world_dir=str(miniworld), legacy_benchmark=str(miniworld / "legacy" / "qa.parquet"),
-               scannet_root=str(miniworld / "scannet" / "scans"), waymo_root=str(miniworld / "waymo"),
-               omni6d_root=str(miniworld / "omni6d"), output_dir=str(out))
-    params = tmp_path / "params.yaml"
-    params.write_text(yaml.safe_dump(cfg))
-    assert run(params) == 0
+def _rows(path):
+    return {json.loads(x)["Legacy Row Key"]: json.loads(x) for x in path.read_text().splitlines()}
+
+
+def test_main_job_end_to_end(main_run, miniworld):
+    out, cfg = main_run.out, main_run.cfg
     rel = out / "release"
     n_legacy = sum(1 for _ in (miniworld / "manifest.jsonl").open())
     acc = (rel / "resti.jsonl").read_text().splitlines()
@@ -35,18 +45,106 @@ def test_main_job_end_to_end_and_byte_identical_rerun(miniworld, tmp_path):
     assert len(acc) + len(exc) == n_legacy
     v = json.loads((rel / "validation.json").read_text())
     assert v["passed"] and v["checks"]["legacy_coverage"]["status"] == "pass"
-    # every notebook rendered, every link of the report resolves
+    # the release.json check compared its counts (it is written beside validation.json)
+    assert v["checks"]["release_json"]["status"] == "pass"
     rendered = {p.stem for p in (out / "report" / "notebooks").glob("*.html")}
     assert {s["notebook"] for s in cfg["stages"] if not s.get("on_demand")} <= rendered
     assert assert_links_resolve(out / "report" / "index.html") > 20
     # no Holm-significant option-only attack on the rebuilt options, except the label prior of
-    # categorical answers (it is a property of the answers, not of the options)
-    import pandas as pd
-
+    # categorical answers (a property of the answers, not of the options)
     att = pd.read_csv(out / "tables" / "attacks_release.csv")
     sig = att[att["significant"] & (att["attack"] != "label_prior")]
     assert sig.empty, sig.to_string()
-    first = _digests(rel)
-    shutil.rmtree(out / "tasks")
-    assert run(params) == 0
-    assert _digests(rel) == first
+
+
+def test_release_json_states_the_run(main_run, miniworld):
+    meta = json.loads((main_run.out / "release" / "release.json").read_text())
+    run = meta["run"]
+    assert run["input"] == {"kind": "mini-world", "synthetic": True, "seed": 0, "world_dir": str(miniworld)}
+    assert run["date"] == "2023-11-14T22:13:20Z"  # SOURCE_DATE_EPOCH=1700000000
+    assert re.fullmatch(r"[0-9a-f]{64}", run["params_digest"])
+    # the digest the pipeline states equals the one computed from the params files alone
+    from resti_lib.runinfo import default_context
+
+    assert default_context(main_run.params)["params_digest"] == run["params_digest"]
+    assert run["code"]["package"].startswith("resti ")
+    assert {"python", "numpy", "pandas"} <= set(run["packages"])
+    index = (main_run.out / "report" / "index.html").read_text()
+    assert run["params_digest"] in index and "2023-11-14T22:13:20Z" in index
+
+
+def test_outputs_follow_the_umask(main_run):
+    want_file, want_dir = 0o666 & ~MAIN_RUN_UMASK, 0o777 & ~MAIN_RUN_UMASK  # 0664 and 0775
+    wrong = []
+    for p in [main_run.out, *main_run.out.rglob("*")]:
+        mode = stat.S_IMODE(p.stat().st_mode)
+        if mode != (want_dir if p.is_dir() else want_file):
+            wrong.append(f"{p.relative_to(main_run.out)} {oct(mode)}")
+    assert not wrong, wrong[:10]
+
+
+def test_run_prints_progress_and_a_summary_only(main_run):
+    err, out = main_run.stderr, main_run.stdout
+    for noise in ("without encryption", "Traceback", "WARNING", "KeyboardInterrupt", "DeprecationWarning"):
+        assert noise not in err, err[-2000:]
+    assert "notebooks" in err  # the progress bar
+    assert re.search(r"release: \d+ legacy rows \(synthetic mini-world, seed 0\) -> \d+ accepted \+ \d+ excluded; "
+                     r"verify PASSED", out), out
+    assert "blind attacks on our release:" in out and "report: " in out
+    assert _ran(out) == {s["notebook"] for s in main_run.cfg["stages"] if not s.get("on_demand")}
+
+
+def test_warm_rerun_does_nothing(main_run):
+    rel = main_run.out / "release"
+    before = {p.name: p.stat().st_mtime_ns for p in rel.iterdir()}
+    r = run_cli(["run", "--params", str(main_run.params)])
+    assert r.returncode == 0, r.stderr
+    assert _ran(r.stdout) == set()
+    assert {p.name: p.stat().st_mtime_ns for p in rel.iterdir()} == before
+
+
+def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run, miniworld, tmp_path):
+    text = (paths.PARAMS / "dimensional.yaml").read_text()
+    assert re.search(r"^decimals: 2 ", text, re.MULTILINE)
+    dim = tmp_path / "dimensional.yaml"
+    dim.write_text(re.sub(r"^decimals: 2 ", "decimals: 3 ", text, flags=re.MULTILINE))
+
+    # a copy of the session's outputs; one task's params edited: that task and what is downstream rerun
+    inc = tmp_path / "incremental"
+    shutil.copytree(main_run.out, inc)
+    edited = tmp_path / "edited.yaml"
+    edited.write_text(yaml.safe_dump(main_params(miniworld, inc, stage_params={"03_dimensional": dim})))
+    r = run_cli(["run", "--params", str(edited)])
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
+
+    # the release changed accordingly: Dimensional answers print more decimals, every other task's
+    # rows are the session run's rows
+    old, new = _rows(main_run.out / "release" / "resti.jsonl"), _rows(inc / "release" / "resti.jsonl")
+    assert old.keys() == new.keys()
+    dims = [k for k, r in new.items() if r["Task"] == "Dimensional Measurement"]
+    assert dims
+    for k in dims:
+        assert V.parse(new[k]["Answer Detail"]).decimals >= 3
+        assert V.parse(old[k]["Answer Detail"]).decimals < V.parse(new[k]["Answer Detail"]).decimals
+    for k, r in new.items():
+        if r["Task"] != "Dimensional Measurement":
+            assert r == old[k], k
+    assert (inc / "report" / "index.html").read_bytes() != (main_run.out / "report" / "index.html").read_bytes()
+
+    # the edit undone: the same two stages rerun and every release file, table and the index are the
+    # bytes of the session's full run with these params
+    undone = tmp_path / "undone.yaml"
+    undone.write_text(yaml.safe_dump(main_params(miniworld, inc)))
+    r = run_cli(["run", "--params", str(undone)])
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
+    full = main_run.out
+    for name in RELEASE_FILES:
+        assert (inc / "release" / name).read_bytes() == (full / "release" / name).read_bytes(), name
+    assert (inc / "report" / "index.html").read_bytes() == (full / "report" / "index.html").read_bytes()
+    tabs = sorted(p.name for p in (full / "tables").iterdir())
+    assert sorted(p.name for p in (inc / "tables").iterdir()) == tabs
+    for name in tabs:
+        assert (inc / "tables" / name).read_bytes() == (full / "tables" / name).read_bytes(), name
+    assert set(TASKS) >= {r["Task"] for r in new.values()}

@@ -6,6 +6,8 @@ import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
+import pandas as pd
+
 from resti_lib.report import write_index
 from resti_lib.sources.context import check_real_params
 
@@ -69,3 +71,142 @@ def test_run_with_bad_paths_exits_2_with_one_message(tmp_path):
     assert r.returncode == 2
     for key in ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root"):
         assert key in r.stderr
+
+
+# ------------------------------------------------------------------ header, tables, figures
+
+def test_run_context_date_only_from_source_date_epoch(monkeypatch):
+    from resti_lib.runinfo import run_context
+
+    cfg = {"world_dir": "outputs/miniworld", "world_seed": 3, "legacy_benchmark": "outputs/miniworld/legacy/qa.parquet",
+           "output_dir": "outputs", "stages": []}
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    ctx = run_context(cfg, {})
+    assert "date" not in ctx  # no clock: reruns stay byte-identical
+    assert ctx["input"] == {"kind": "mini-world", "synthetic": True, "seed": 3, "world_dir": "outputs/miniworld"}
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "86400")
+    assert run_context(cfg, {})["date"] == "1970-01-02T00:00:00Z"  # one day after the epoch
+
+
+def test_run_context_real_input_and_params_digest():
+    from resti_lib.runinfo import run_context, stage_params_digest
+
+    cfg = {"world_dir": "", "legacy_benchmark": "/data/qa.parquet", "scannet_root": "/data/scans",
+           "output_dir": "outputs/real", "jobs": 2, "stages": [{"notebook": "03_dimensional"}]}
+    ctx = run_context(cfg, {"03_dimensional": stage_params_digest({"decimals": 2, "output_dir": "x"})})
+    assert ctx["input"] == {"kind": "real data", "synthetic": False, "legacy_benchmark": "/data/qa.parquet",
+                            "scannet_root": "/data/scans"}
+    # where outputs go and how many jobs run do not change the digest; a parameter does
+    moved = {**cfg, "output_dir": "elsewhere", "jobs": 1}
+    same = run_context(moved, {"03_dimensional": stage_params_digest({"decimals": 2, "output_dir": "y"})})
+    other = run_context(cfg, {"03_dimensional": stage_params_digest({"decimals": 3, "output_dir": "x"})})
+    assert same["params_digest"] == ctx["params_digest"] != other["params_digest"]
+
+
+def test_shown_tables_format_percentages_and_drop_positions():
+    from resti_lib.tables import formatted, to_html
+
+    df = pd.DataFrame({"category": ["a", "b", "c"], "reports": [83, 13, 4], "share": [0.83, 0.13, 0.04],
+                       "p_value": [0.000123456, 0.5, 1.0]}).sort_values("reports", ascending=True)
+    f = formatted(df)
+    assert list(f.columns) == ["category", "reports", "share", "p_value"]  # no index column
+    assert list(f["share"]) == ["4.0%", "13.0%", "83.0%"] and list(f["p_value"]) == ["1", "0.5", "0.000123"]
+    assert "<th>share</th>" in to_html(df) and ">83.0%<" in to_html(df)
+    counts = pd.Series([5, 2], index=pd.Index(["ambiguous_instance", "grouped_referent"], name="reason"))
+    assert list(formatted(counts.to_frame("rows")).columns) == ["reason", "rows"]  # a named index is data
+
+
+def test_write_table_shows_percent_and_keeps_raw_csv(tmp_path):
+    from resti_lib.tables import write_table
+
+    write_table(pd.DataFrame({"defect": ["x"], "recall": [0.875]}), tmp_path / "t")
+    assert "87.5%" in (tmp_path / "t.md").read_text() and "87.5\\%" in (tmp_path / "t.tex").read_text()
+    assert (tmp_path / "t.csv").read_text() == "defect,recall\nx,0.875\n"
+
+
+def test_key_detail_breakdown_by_cause():
+    from resti_lib.statistics import key_detail_breakdown
+    from tests.helpers import row
+
+    five = {"A": "1.00m", "B": "2.00m", "C": "3.00m", "D": "4.00m", "E": "5.00m"}
+    pose = ('{"tx":1.00,"ty":2.00,"tz":3.00,"r11":1.0,"r12":0.0,"r13":0.0,"r21":0.0,"r22":1.0,"r23":0.0,'
+            '"r31":0.0,"r32":0.0,"r33":1.0}')
+    pose2 = pose.replace('"tz":3.00', '"tz":3.50')  # 0.5 m off, beyond the rounding of 0.005
+    rows = [
+        row(cands=five, answer="B", detail="2.00m"),                    # keyed == detail: not counted
+        row(cands=five, answer="B", detail="3.10m"),                    # 2.00 vs 3.10: scalar
+        row(cands=five, answer="B", detail="2.0m"),                     # same value, coarser: rounding
+        row(cands=five, answer="B", detail="2.03m"),                    # 2.00 vs 2.03: scalar
+        row(cands=five, answer="B", detail="Front"),                    # scalar vs label: format
+        row(task="Pose Estimation", cands={**five, "B": pose}, answer="B", detail=pose2),  # structured
+    ]
+    t = key_detail_breakdown(pd.DataFrame(rows)).set_index("cause")
+    by = {c.split(" ")[0]: n for c, n in t["rows"].items()}
+    # 2.00 vs 2.03: the coarser printed place is 0.01 m, half of it 0.005 < 0.03 -> scalar disagreement
+    assert by["structured"] == 1 and by["scalar"] == 2 and by["incompatible"] == 1 and by["same"] == 1
+    assert by["all"] == 5
+    assert t.loc["all keyed candidates differing from the detail text", "by task"] == "4 counted as key_detail_mismatch"
+
+
+def test_exclusions_recoverable_or_structural():
+    from resti_lib.statistics import exclusion_class_table
+
+    ex = [{"task": "Dimensional Measurement", "reason_codes": ["ambiguous_instance"]},
+          {"task": "Dimensional Measurement", "reason_codes": ["not_visible_at_frame", "undefined_dimension"]},
+          {"task": "Pose Estimation", "reason_codes": ["premise_equals_target"]},
+          {"task": "Displacement & Path Length", "reason_codes": ["zero_length_interval"]}]
+    t = exclusion_class_table(ex).set_index("class")
+    assert t.loc["recoverable", "rows"] == 2 and t.loc["structural", "rows"] == 2
+    assert t.loc["recoverable", "share"] == 0.5
+    assert t.loc["structural", "by task"] == "Displacement & Path Length 1, Pose Estimation 1"
+
+
+def test_pooled_scalar_attacks_median_pick():
+    from resti_lib.statistics import pooled_scalar_attacks
+    from tests.helpers import row
+
+    # 10 scalar rows whose answer is always the median candidate (C of 1..5), across two tasks,
+    # and one label row that the pool leaves out
+    five = {"A": "1.00m", "B": "2.00m", "C": "3.00m", "D": "4.00m", "E": "5.00m"}
+    rows = [row(task=t, cands=five, answer="C", rid=i) for i, t in
+            enumerate(["Dimensional Measurement"] * 6 + ["Displacement & Path Length"] * 4)]
+    rows.append(row(task="Spatial Relation", cands={k: v for k, v in zip("ABCDE", ["Front", "Back", "Left",
+                                                                                       "Right", "Above"])},
+                    answer="A", detail="Front", rid=99))
+    t = pooled_scalar_attacks(pd.DataFrame(rows)).set_index("attack")
+    assert t.loc["median", "rows"] == 10 and t.loc["median", "hits"] == 10 and t.loc["median", "accuracy"] == 1.0
+    assert t.loc["min", "hits"] == 0
+    assert t.index[0] in ("median", "nearest_mean", "medoid", "constant_letter")  # strongest first
+
+
+def test_figure_registry_order_and_captions(tmp_path):
+    from resti_lib.figures import FIGURES, ordered_figures
+
+    for name in ("07_trajectory_paths", "zz_other", "99_attacks_after", "99_audit_overview",
+                 "00_answer_interface_attacks_resti_v5"):
+        (tmp_path / f"{name}.png").write_bytes(b"\x89PNG\r\n")
+    order = [(p.stem, spec.section if spec else None) for p, spec in ordered_figures(tmp_path)]
+    assert order == [("99_audit_overview", "Overview"), ("00_answer_interface_attacks_resti_v5", "Answer interface"),
+                     ("99_attacks_after", "Answer interface"), ("07_trajectory_paths", "Tasks"), ("zz_other", None)]
+    assert all(len(s.caption) > 40 for s in FIGURES)
+
+
+def test_default_run_makes_only_registered_figures(main_run):
+    from resti_lib.figures import spec_for
+
+    pngs = sorted(p.stem for p in (main_run.out / "figures").glob("*.png"))
+    assert "99_audit_overview" in pngs
+    assert [p for p in pngs if spec_for(p) is None] == []
+    index = (main_run.out / "report" / "index.html").read_text()
+    assert index.index("99_audit_overview.png") < min(index.index(f"{p}.png") for p in pngs if p != "99_audit_overview")
+
+
+def test_index_header_and_headline(main_run):
+    index = (main_run.out / "report" / "index.html").read_text()
+    head, rest = index.split("<section id=\"headline\">", 1)
+    for text in ("Input: the synthetic mini-world", "Params digest", "Code version", "Packages", "Date"):
+        assert text in head
+    assert "Our release" in rest and "Verdict shares" in rest and "Defect categories" in rest
+    assert rest.index("Answer-interface audit of the reference release") < rest.index("Self-test on the mini-world")
+    for stem in ("key_detail_breakdown", "exclusion_classes", "legacy_scalar_attacks"):
+        assert f"tables/{stem}.md" in index  # shown on the page, with its files

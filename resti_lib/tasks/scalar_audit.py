@@ -17,7 +17,6 @@ import pandas as pd
 
 from .. import values as V
 from ..adjudicate import Rule, agrees_scalar, rule_for
-from ..figures import save_figure
 from ..referents import noun_phrase
 from .base import Case, Outcome
 
@@ -95,41 +94,12 @@ def scatter_by_source(df: pd.DataFrame, path: str | Path, *, x: str = "source_si
     """Legacy against reconstructed values, one panel per source, coloured by verdict (y = x dashed).
 
     ``series``: optional extra ``(x column, label)`` pairs plotted against ``y`` with other markers
-    (e.g. the legacy speed against displacement/Δt and against path/Δt).
+    (e.g. the legacy speed against displacement/Δt and against path/Δt). Drawn by
+    :func:`resti_lib.plots.scatter_panels` (one legend below the panels, no overlapping titles).
     """
-    import matplotlib
+    from ..plots import scatter_panels
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    sources = [s for s in ("ScanNet", "Waymo", "Omni6DPose") if s in set(df["source"])] or ["(none)"]
-    fig, axes = plt.subplots(1, len(sources), figsize=(3.6 * len(sources), 3.4), squeeze=False)
-    colors = {"retained": "tab:green", "corrected": "tab:red", "re-contracted": "tab:orange", "excluded": "grey"}
-    for ax, src in zip(axes[0], sources):
-        d = df[df["source"] == src]
-        pairs = series or [(x, xlabel)]
-        markers = ["o", "^", "s", "x"]
-        lim = [np.inf, -np.inf]
-        for j, (xc, lab) in enumerate(pairs):
-            for verdict, g in d.groupby("verdict"):
-                ok = g[[xc, y]].notna().all(axis=1)
-                if not ok.any():
-                    continue
-                gx, gy = g.loc[ok, xc].astype(float), g.loc[ok, y].astype(float)
-                ax.scatter(gx, gy, s=14, marker=markers[j % len(markers)], color=colors.get(verdict, "k"),
-                           alpha=0.75, label=f"{verdict}" + (f" · {lab}" if series else ""))
-                lim = [min(lim[0], gx.min(), gy.min()), max(lim[1], gx.max(), gy.max())]
-        if np.isfinite(lim).all():
-            pad = 0.05 * (lim[1] - lim[0] + 1e-9)
-            ax.plot([lim[0] - pad, lim[1] + pad], [lim[0] - pad, lim[1] + pad], "k--", lw=0.7)
-        ax.set_title(f"{src} (n={len(d)})")
-        ax.set_xlabel(xlabel if not series else "source value (SI)")
-        ax.set_ylabel(ylabel)
-        if len(d):
-            ax.legend(fontsize=6, frameon=False)
-    if title:
-        fig.suptitle(title)
-    return save_figure(fig, path)
+    return scatter_panels(df, path, x=x, y=y, xlabel=xlabel, ylabel=ylabel, title=title, series=series)
 
 
 def verdict_counts(outcomes: list[Outcome]) -> pd.DataFrame:

@@ -170,18 +170,12 @@ def path_evidence(track: PoseTrack, t0: float, t1: float) -> dict:
     return {"t": [round(float(t), 6) for t in track.times[sel]], "xy": xy.tolist()}
 
 
-def plot_path(evidence: dict, path: str | Path, *, title: str = "") -> Path:
-    """Top-down camera path (world x-y) with the turn windows and the split samples of one row, from
-    the row's evidence (``operator`` and ``path``: no source is reopened)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _draw_path(ax, evidence: dict, title: str) -> None:
+    """Top-down camera path (world x-y) with the turn windows and the split samples of one row, on
+    ``ax``, from the row's evidence (``operator`` and ``path``: no source is reopened)."""
     op = evidence["operator"]
     tt = np.asarray(evidence["path"]["t"], float)
     p = np.asarray(evidence["path"]["xy"], float).reshape(-1, 2)
-    fig, ax = plt.subplots(figsize=(5.0, 4.2))
     ax.plot(p[:, 0], p[:, 1], color="#2c7fb8", lw=1.5, label="move")
     for w in op.get("turn_windows", []):
         m = (tt >= w["window"][0] - 1e-6) & (tt <= w["window"][1] + 1e-6)
@@ -190,39 +184,64 @@ def plot_path(evidence: dict, path: str | Path, *, title: str = "") -> Path:
         ax.scatter([p[k, 0]], [p[k, 1]], color="k", s=14, zorder=3)
         d = w["heading_change_deg"]
         ax.annotate(f"{'left' if d > 0 else 'right'} {abs(d):.0f}°", (p[k, 0], p[k, 1]),
-                    textcoords="offset points", xytext=(6, 6), fontsize=7)
+                    textcoords="offset points", xytext=(6, 6), fontsize=8)
     ax.scatter([0.0], [0.0], marker="o", color="#2c7fb8", s=20, zorder=3)
     ax.plot([], [], color="#d95f0e", lw=3.0, label="turn window")
     ax.scatter([], [], color="k", s=14, label="split sample")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("world x − x(t0) [m]")
     ax.set_ylabel("world y − y(t0) [m]")
-    segs = [tuple(s) for s in op.get("segments", [])]
-    ax.set_title(title or V.format_trajectory(segs), fontsize=7)
+    ax.set_title(title, fontsize=8, loc="left")
+
+
+def plot_path(evidence: dict, path: str | Path, *, title: str = "") -> Path:
+    """Top-down camera path (world x-y) with the turn windows and the split samples of one row, from
+    the row's evidence (``operator`` and ``path``: no source is reopened)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.0, 4.2), layout="constrained")
+    segs = [tuple(s) for s in evidence["operator"].get("segments", [])]
+    _draw_path(ax, evidence, title or V.format_trajectory(segs))
     ax.legend(frameon=False, fontsize=7, loc="best")
-    fig.tight_layout()
     return save_figure(fig, path)
 
 
 def plot_paths(outcomes: list[Outcome], fig_dir: str | Path, *, prefix: str = "07_trajectory_path",
                max_plots: int = 4) -> list[Path]:
-    """Top-down path figures (:func:`plot_path`) for up to ``max_plots`` distinct videos, those with
-    the most turns first; files ``<fig_dir>/<prefix>_<k>.png``."""
+    """One figure ``<fig_dir>/<prefix>s.png`` with the top-down paths of up to ``max_plots`` rows on
+    distinct source sequences (the cameras of one Waymo segment share its path), those with the most
+    turns first, one legend for all panels. Returns ``[path]`` (``[]`` without a drawable row)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     seen, chosen = set(), []
     ranked = sorted((o for o in outcomes if o.verdict != "excluded" and "path" in o.evidence),
                     key=lambda o: (-len(o.evidence["operator"].get("turn_windows", [])), o.row))
     for o in ranked:
-        if o.video not in seen:
-            seen.add(o.video)
+        sequence = (o.contract or {}).get("sequence") or o.video
+        if sequence not in seen:
+            seen.add(sequence)
             chosen.append(o)
         if len(chosen) == max_plots:
             break
-    out = []
-    for k, o in enumerate(chosen):
+    if not chosen:
+        return []
+    ncol = 2 if len(chosen) > 1 else 1
+    nrow = -(-len(chosen) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(11.0, 4.6 * nrow), squeeze=False, layout="constrained")
+    for ax in axes.flat[len(chosen):]:
+        ax.set_visible(False)
+    for ax, o in zip(axes.flat, chosen):
         segs = [tuple(s) for s in o.evidence["operator"].get("segments", [])]
-        out.append(plot_path(o.evidence, Path(fig_dir) / f"{prefix}_{k}.png",
-                             title=f"{o.video}: {V.format_trajectory(segs)}"))
-    return out
+        _draw_path(ax, o.evidence, f"{o.video}\n{V.format_trajectory(segs)}")
+    h, lab = axes.flat[0].get_legend_handles_labels()
+    fig.legend(h, lab, loc="outside lower center", ncol=3, frameon=False)
+    return [save_figure(fig, Path(fig_dir) / f"{prefix}s.png")]
 
 
 __all__ = [
