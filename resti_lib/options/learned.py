@@ -35,7 +35,8 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from .. import values as V
-from .attacks import ATTACKS, _project_so3, _rot_angle, parse_rows, run_picks, summarize_picks
+from .attacks import (ATTACKS, Batch, _project_so3, _rot_angle, attack, make_batch, parse_rows, picks_frame,
+                      run_picks, select, summarize_picks, top)
 from .checks import ParsedRow
 
 NAME = "learned_blind"
@@ -315,38 +316,61 @@ def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig |
     return scores, used
 
 
+def _picks_of_scores(scores: np.ndarray) -> list:
+    """The top-scoring letters of each row (a tie is a set)."""
+    return [top({k: float(x) for k, x in zip(LETTERS, s)}) for s in scores]
+
+
 def learned_picks(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None) -> pd.DataFrame:
     """Per-row picks of the learned attacker, in the columns of :func:`attacks.run_picks`."""
-    scores, used = out_of_fold_scores(rows, videos, cfg)
-    recs = []
-    for s, i in zip(scores, used):
-        p = rows[i]
-        top = np.max(s)
-        win = np.flatnonzero(np.abs(s - top) <= 1e-12)
-        pick = LETTERS[int(win[0])] if len(win) == 1 else None
-        recs.append((NAME, p.rid, p.task, p.source, pick, p.answer, pick == p.answer))
-    return pd.DataFrame.from_records(recs, columns=["attack", "rid", "task", "source", "pick", "answer", "hit"])
+    batch, used = make_batch(rows)
+    scores, _ = out_of_fold_scores(batch.rows, [videos[i] for i in used], cfg)
+    return picks_frame(batch, NAME, _picks_of_scores(scores), family="learned_option")
+
+
+def config_of(spec) -> LearnedConfig:
+    """A :class:`LearnedConfig` from None (defaults), a config, ``True`` or a dict of its fields."""
+    if isinstance(spec, LearnedConfig):
+        return spec
+    if spec is None or spec is True:
+        return LearnedConfig()
+    return config_from(spec)
+
+
+def cv_groups(batch: Batch) -> list:
+    """Cross-validation group of every row: ``settings["groups"][Legacy Row Key]`` where given, else the
+    source sequence read from the video name (the camera videos of one Waymo segment, which share ego
+    answers, never straddle train and test)."""
+    given = batch.settings.get("groups") or {}
+    return [given.get(r.get("Legacy Row Key"), o.sequence) for r, o in zip(batch.records, batch.obs)]
+
+
+@attack(NAME, ["any"], "gradient-boosting classifier on candidate features, out of fold by source sequence",
+        family="learned_option", scope="batch")
+def _learned_blind(batch: Batch):
+    if len({*cv_groups(batch)}) < 2:
+        return [None] * len(batch)
+    scores, _ = out_of_fold_scores(batch.rows, cv_groups(batch), config_of(batch.settings.get("learned")))
+    return _picks_of_scores(scores)
 
 
 def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
-                              learned: LearnedConfig | None | bool = None, groups: dict | None = None
-                              ) -> pd.DataFrame:
-    """The rule attacks' table with ``learned_blind`` appended before the binomial tests and Holm.
+                              learned: LearnedConfig | None | bool = None, groups: dict | None = None,
+                              families=None) -> pd.DataFrame:
+    """The attack table with the learned attackers (:func:`attacks.attack_table` with ``fast=False``).
 
-    ``learned=False`` leaves the learned attacker out (the plain :func:`attacks.attack_table`).
-    ``groups`` maps a row's Legacy Row Key to its cross-validation group (e.g. its source sequence,
-    so the camera videos of one Waymo segment, which share ego answers, never straddle train and
-    test); rows not in it are grouped by ``Video``.
+    ``families`` None keeps this function's historical scope: the option-only and formatting rules and
+    the learned option-only attacker (``learned_blind``); pass ``"all"`` for every family.
+    ``learned=False`` leaves the learned attackers out. ``groups`` maps a row's Legacy Row Key to its
+    cross-validation group (default: the source sequence of its video).
     """
-    rows = parse_rows(records)
-    picks = run_picks(rows, attacks)
-    if learned is not False:
-        cfg = learned if isinstance(learned, LearnedConfig) else LearnedConfig()
-        groups = groups or {}
-        videos = [groups.get(r.get("Legacy Row Key"), r.get("Video")) for r in records]
-        picks = pd.concat([picks, learned_picks(rows, videos, cfg)], ignore_index=True)
-    tests = {n: 5 if n == "constant_letter" else 1 for n in list(ATTACKS) + [NAME]}
-    return summarize_picks(picks, alpha=alpha, tests=tests)
+    from .attacks import attack_table
+
+    fams = ("option", "format", "learned_option") if families is None else families
+    if attacks not in (None, "all"):
+        names = [attacks] if isinstance(attacks, str) else list(attacks)
+        attacks = names + [n for n in select(fams) if ATTACKS[n].learned and n not in names]
+    return attack_table(records, families=fams, alpha=alpha, attacks=attacks, learned=learned, groups=groups)
 
 
 def config_from(params: dict | None) -> LearnedConfig:
