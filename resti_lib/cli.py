@@ -19,22 +19,38 @@ def _cmd_verify(a) -> int:
 
 
 def _cmd_attack(a) -> int:
-    from .answer_interface import select_attacks
+    from .answer_interface import format_headline
     from .io.benchmark import load_release
-    from .options.attacks import attack_table
+    from .options.attacks import attack_table, headline, select
 
+    try:
+        names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
+    except ValueError as e:
+        print(f"resti attack: {e}", file=sys.stderr)
+        return 2
     rel = load_release(a.path, strict=False)
-    table = attack_table(rel.accepted.to_dict("records"), alpha=a.alpha, attacks=select_attacks(a.attacks))
+    table = attack_table(rel.accepted.to_dict("records"), families="all", attacks=names, alpha=a.alpha,
+                         progress=True)
+    head = format_headline(headline(table), alpha=a.alpha, tests=len(table))
     if a.format == "json":
+        print(head, file=sys.stderr)
         print(json.dumps(table.to_dict("records"), indent=1, default=float))
     elif a.format == "csv":
+        print(head, file=sys.stderr)
         sys.stdout.write(table.to_csv(index=False, lineterminator="\n"))
     else:
         shown = table.copy()
-        for c in ("coverage", "accuracy", "chance"):
+        for c in ("coverage", "accuracy", "chance", "min_detectable"):
             shown[c] = shown[c].map(lambda x: f"{x:.3f}")
-        shown["p_value"] = shown["p_value"].map(lambda x: f"{x:.3g}")
+        shown["hits"] = shown["hits"].map(lambda x: f"{x:g}")
+        for c in ("p_value", "p_holm"):
+            shown[c] = shown[c].map(lambda x: f"{x:.3g}")
+        print(head + "\n")
         print(shown.to_markdown(index=False))
+    if a.fail_on_significant and bool(table["significant"].any()):
+        print(f"resti attack: {int(table['significant'].sum())} Holm-significant attack rows "
+              "(--fail-on-significant)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -86,11 +102,19 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--legacy", help="legacy qa.parquet: also check that every legacy row is accounted for")
     v.set_defaults(fn=_cmd_verify)
 
-    at = sub.add_parser("attack", help="option-only attacks on a release")
+    at = sub.add_parser("attack", help="blind attacks on a release (options, format, question, other rows, "
+                        "metadata, learned)")
     at.add_argument("path")
-    at.add_argument("--format", choices=["md", "csv", "json"], default="md")
-    at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate")
-    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all)")
+    at.add_argument("--format", choices=["md", "csv", "json"], default="md",
+                    help="table format on stdout (md: headline first; csv/json: headline on stderr)")
+    at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate over every table row")
+    at.add_argument("--families", nargs="*", default=None,
+                    help="attack families (default: all): option format typicality question cross_row "
+                    "metadata learned_option learned_question")
+    at.add_argument("--fast", action="store_true", help="leave the learned families out")
+    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all of the families)")
+    at.add_argument("--fail-on-significant", action="store_true",
+                    help="exit with status 1 when any attack is Holm-significant (for CI)")
     at.set_defaults(fn=_cmd_attack)
 
     ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "

@@ -502,7 +502,8 @@ def _order_concordance(p: ParsedRow) -> dict | None:
     out = {}
     for c in LETTERS:
         d = [float(np.linalg.norm(z[k] - z[c])) for k in LETTERS if k != c]
-        out[c] = float(sum(np.sign(d[b] - d[a]) for a in range(4) for b in range(a + 1, 4)))
+        out[c] = float(sum(np.sign(d[b] - d[a]) if abs(d[b] - d[a]) > 1e-9 else 0.0
+                           for a in range(4) for b in range(a + 1, 4)))
     return out
 
 
@@ -540,12 +541,12 @@ def _label_order(batch: Batch):
     return out
 
 
-@attack("shortest_string", ["any"], "shortest candidate string", family="format")
+@attack("shortest_string", ["any"], "shortest candidate string")
 def _shortest(p: ParsedRow):
     return top({k: -float(len(s)) for k, s in p.candidates.items()})
 
 
-@attack("longest_string", ["any"], "longest candidate string", family="format")
+@attack("longest_string", ["any"], "longest candidate string")
 def _longest(p: ParsedRow):
     return top({k: float(len(s)) for k, s in p.candidates.items()})
 
@@ -763,6 +764,9 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     return df[COLUMNS]
 
 
+OPTION_ONLY = ("option",)
+
+
 def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fast: bool = False, attacks=None,
                  learned=None, groups: dict | None = None, progress: bool = False) -> pd.DataFrame:
     """The attack table of a list of release rows (dicts with Candidates as dicts).
@@ -772,7 +776,9 @@ def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fas
     records:
         Release (or legacy) rows.
     families:
-        Attack families to run (see :data:`FAMILIES`); None or ``"all"``: every family.
+        Attack families to run (see :data:`FAMILIES`); ``"all"``: every family, the full blind suite of
+        ``resti attack``. None (the default) keeps the historical scope of this function, the
+        option-only rules (:data:`OPTION_ONLY`), unless ``attacks`` names attacks of other families.
     alpha:
         Holm family-wise error rate over every row of the table.
     fast:
@@ -788,6 +794,8 @@ def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fas
     progress:
         Show a progress bar over the attacks.
     """
+    if families is None:
+        families = OPTION_ONLY if attacks in (None, "all") else "all"
     names = select(families, attacks, fast=fast or learned is False)
     rows = parse_rows(records)
     batch, _ = make_batch(rows, records, learned=None if learned is False else learned, groups=groups or {})

@@ -27,6 +27,7 @@ picks as attack ``learned_blind`` before the binomial tests and Holm's correctio
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from dataclasses import dataclass
 
@@ -40,6 +41,7 @@ from .attacks import (ATTACKS, Batch, _project_so3, _rot_angle, attack, make_bat
 from .checks import ParsedRow
 
 NAME = "learned_blind"
+QUESTION_NAME = "learned_question"
 SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
 LABELS = tuple(V.RELATION_LABELS)
 
@@ -51,8 +53,8 @@ class LearnedConfig:
     model: str = "gradient_boosting"  # or "random_forest"
     n_splits: int = 5
     random_state: int = 0
-    max_iter: int = 200
-    learning_rate: float = 0.05
+    max_iter: int = 100
+    learning_rate: float = 0.1
     max_leaf_nodes: int = 15
     min_samples_leaf: int = 20
     n_estimators: int = 300
@@ -243,10 +245,14 @@ def row_features(p: ParsedRow) -> np.ndarray:
         if isinstance(v, V.Trajectory):
             st = v.structure
             traj[i] = [len(st), sum(1 for s in st if s == "turn+"), sum(1 for s in st if s == "turn-")]
+    from .attacks import _order_concordance
+
+    order = _order_concordance(p)
+    order = np.array([[order[k]] for k in LETTERS]) if order is not None else np.full((n, 1), np.nan)
     geo, rot = _geometry(p)
     geo_stats = np.concatenate([_column_stats(geo[:, j]) for j in range(geo.shape[1])], axis=1)
     return np.concatenate([task, src, letter, strf, summ, stats, _group_stats(p), angle, lab, traj, geo, geo_stats,
-                           rot], axis=1)
+                           rot, order], axis=1)
 
 
 def feature_matrix(rows: list[ParsedRow]) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -283,25 +289,35 @@ def _model(cfg: LearnedConfig):
 
 def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None
                        ) -> tuple[np.ndarray, list[int]]:
-    """Out-of-fold candidate scores, shape (n_used, 5), and the indices of the used rows.
+    """Out-of-fold candidate scores of the option-only attacker, shape (n_used, 5), and the indices of the
+    used rows.
 
-    Folds: :class:`sklearn.model_selection.GroupKFold` on the rows' videos (never split a video).
+    Folds: :class:`sklearn.model_selection.GroupKFold` on ``videos`` (one group label per row; pass the
+    source sequence to keep a sequence's videos together).
     """
+    X, y, used = feature_matrix(rows)
+    if not used:
+        return np.zeros((0, 5)), []
+    return grouped_scores(X, y, [videos[i] for i in used], cfg), used
+
+
+def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfig | None = None) -> np.ndarray:
+    """Out-of-fold scores (n_rows, 5) of a classifier on candidate features ``X`` (5 consecutive candidate
+    rows per question, in letter order) with labels ``y``; folds by ``groups`` (one label per question),
+    so no group is in a training and a test fold at once."""
     from sklearn.model_selection import GroupKFold
     from threadpoolctl import threadpool_limits
 
     cfg = cfg or LearnedConfig()
-    X, y, used = feature_matrix(rows)
-    if not used:
-        return np.zeros((0, 5)), []
     X = X[:, ~np.all(np.isnan(X), axis=0)]  # features of kinds absent from these rows
-    groups_row = np.array([str(videos[i]) for i in used])
+    groups_row = np.array([str(g) for g in groups])
     n_groups = len(set(groups_row))
     if n_groups < 2:
-        raise ValueError("the learned attacker needs at least two videos for grouped cross-validation")
+        raise ValueError("the learned attacker needs at least two groups (videos or sequences) for grouped "
+                         "cross-validation")
     n_splits = min(cfg.n_splits, n_groups)
-    row_idx = np.arange(len(used))
-    scores = np.full((len(used), 5), np.nan)
+    row_idx = np.arange(len(groups_row))
+    scores = np.full((len(groups_row), 5), np.nan)
     for train, test in GroupKFold(n_splits=n_splits).split(row_idx, groups=groups_row):
         tr = (train[:, None] * 5 + np.arange(5)).ravel()
         te = (test[:, None] * 5 + np.arange(5)).ravel()
@@ -313,7 +329,84 @@ def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig |
             model.fit(X[tr], y[tr])
             proba = model.predict_proba(X[te])[:, list(model.classes_).index(True)]
         scores[test] = proba.reshape(-1, 5)
-    return scores, used
+    return scores
+
+
+# ------------------------------------------------------------------------------------ question features
+
+OPERATORS = ("box_in_camera", "heading_change", "pose", "displacement", "path_length", "average_velocity",
+             "average_speed", "acceleration", "trajectory", "dimension", "distance_to_camera", "object_distance",
+             "mounted_relation", "relative_position")
+SUBJECTS = ("camera", "object", "object_pair", "ambiguous")
+WORD_BUCKETS = 32
+NOUN_BUCKETS = 16
+
+
+def _bucket(text: str, n: int) -> int:
+    import zlib
+
+    return zlib.crc32(text.encode("utf-8")) % n
+
+
+def question_row_features(record: dict, obs) -> np.ndarray:
+    """Features of one question (the same for its five candidates): question type, subject, window,
+    premise, hashed words of the question text and hashed subject noun."""
+    op = np.zeros(len(OPERATORS) + 1)
+    op[OPERATORS.index(obs.operator) if obs.operator in OPERATORS else len(OPERATORS)] = 1
+    dim = np.array([obs.qtype == f"dimension:{d}" for d in ("length", "width", "height")], float)
+    subj = np.zeros(len(SUBJECTS) + 1)
+    subj[SUBJECTS.index(obs.subject) if obs.subject in SUBJECTS else len(SUBJECTS)] = 1
+    d = obs.duration
+    window = [np.log(d + 0.1) if d is not None else np.nan, d if d is not None else np.nan,
+              float(d == 0) if d is not None else np.nan, obs.rate_window or 0.0, float(obs.premise is not None)]
+    words = np.zeros(WORD_BUCKETS)
+    toks = re.findall(r"[a-z]+", str(record.get("Question") or "").lower())
+    for w in toks:
+        words[_bucket(w, WORD_BUCKETS)] += 1
+    words /= max(1, len(toks))
+    noun = np.zeros(NOUN_BUCKETS + 1)
+    noun[_bucket(obs.noun, NOUN_BUCKETS) if obs.noun else NOUN_BUCKETS] = 1
+    return np.concatenate([op, dim, subj, window, words, noun])
+
+
+def question_candidate_features(p: ParsedRow, obs) -> np.ndarray:
+    """(5, F) candidate features that need the question: the implied rate over the window (log), the
+    translation and rotation distance to the premise pose (and whether the candidate repeats it), each
+    with its within-row statistics."""
+    from .observables import implied_rate
+
+    rate = np.full(5, np.nan)
+    prem = np.full((5, 3), np.nan)
+    for i, k in enumerate(LETTERS):
+        v = p.values[k]
+        r = implied_rate(v, obs)
+        if r is not None:
+            rate[i] = math.log(r[1] + 1e-4)
+        if obs.premise is not None and isinstance(v, V.Pose):
+            R0, t0 = np.array(obs.premise.R, float), np.array(obs.premise.t, float)
+            dt = float(np.linalg.norm(np.array(v.t, float) - t0))
+            prem[i] = [math.log(dt + 1e-3), math.degrees(_rot_angle(R0, np.array(v.R, float))),
+                       float(v.key() == obs.premise.key())]
+    parts = [rate[:, None], _column_stats(rate), prem, _column_stats(prem[:, 0]), _column_stats(prem[:, 1])]
+    return np.concatenate(parts, axis=1)
+
+
+def _option_matrix(batch: Batch) -> tuple[np.ndarray, np.ndarray]:
+    """Option-only candidate features and labels of every row of the batch (computed once per batch)."""
+    key = "learned_option_features"
+    if key not in batch._index:
+        X, y, _ = feature_matrix(batch.rows)
+        batch._index[key] = (X, y)
+    return batch._index[key]
+
+
+def question_matrix(batch: Batch) -> np.ndarray:
+    """Question and question-aware candidate features of every row (5 candidate rows per question)."""
+    out = []
+    for p, r, o in zip(batch.rows, batch.records, batch.obs):
+        q = np.repeat(question_row_features(r, o)[None, :], 5, axis=0)
+        out.append(np.concatenate([q, question_candidate_features(p, o)], axis=1))
+    return np.concatenate(out).astype(float) if out else np.zeros((0, 0))
 
 
 def _picks_of_scores(scores: np.ndarray) -> list:
@@ -348,10 +441,23 @@ def cv_groups(batch: Batch) -> list:
 @attack(NAME, ["any"], "gradient-boosting classifier on candidate features, out of fold by source sequence",
         family="learned_option", scope="batch")
 def _learned_blind(batch: Batch):
-    if len({*cv_groups(batch)}) < 2:
+    groups = cv_groups(batch)
+    if len(set(groups)) < 2:
         return [None] * len(batch)
-    scores, _ = out_of_fold_scores(batch.rows, cv_groups(batch), config_of(batch.settings.get("learned")))
-    return _picks_of_scores(scores)
+    X, y = _option_matrix(batch)
+    return _picks_of_scores(grouped_scores(X, y, groups, config_of(batch.settings.get("learned"))))
+
+
+@attack(QUESTION_NAME, ["any"], "gradient-boosting classifier on candidate features and the question's features "
+        "(type, subject, window, premise, hashed words and noun; implied rate, distance to the premise), out of "
+        "fold by source sequence", family="learned_question", scope="batch")
+def _learned_question(batch: Batch):
+    groups = cv_groups(batch)
+    if len(set(groups)) < 2:
+        return [None] * len(batch)
+    X, y = _option_matrix(batch)
+    Xq = np.concatenate([X, question_matrix(batch)], axis=1)
+    return _picks_of_scores(grouped_scores(Xq, y, groups, config_of(batch.settings.get("learned"))))
 
 
 def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
@@ -359,14 +465,14 @@ def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attac
                               families=None) -> pd.DataFrame:
     """The attack table with the learned attackers (:func:`attacks.attack_table` with ``fast=False``).
 
-    ``families`` None keeps this function's historical scope: the option-only and formatting rules and
-    the learned option-only attacker (``learned_blind``); pass ``"all"`` for every family.
+    ``families`` None keeps this function's historical scope: the option-only rules and the learned
+    option-only attacker (``learned_blind``); pass ``"all"`` for every family.
     ``learned=False`` leaves the learned attackers out. ``groups`` maps a row's Legacy Row Key to its
     cross-validation group (default: the source sequence of its video).
     """
     from .attacks import attack_table
 
-    fams = ("option", "format", "learned_option") if families is None else families
+    fams = ("option", "learned_option") if families is None else families
     if attacks not in (None, "all"):
         names = [attacks] if isinstance(attacks, str) else list(attacks)
         attacks = names + [n for n in select(fams) if ATTACKS[n].learned and n not in names]
