@@ -60,6 +60,10 @@ _LEAD = re.compile(r"^(?:bounding\s+box(?:es)?\s+of\s+)?(?:the|a|an|two|three|so
 _RATE_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*-?\s*second\s+(?:central\s+)?windows?", re.I)
 _JSON_OBJ = re.compile(r"\{[^{}]*\}")
 _IDENTITY = re.compile(r"\bas the identity\b", re.I)
+# "... of the <subject> between t=..", "... of the <subject> at t=..", "... of the <subject>?"
+_OF_SUBJECT = re.compile(r"\b(?:velocity|speed|acceleration|displacement|distance traveled|trajectory|length|width|"
+                         r"height|position|box) of (?:the |a |an )?(.+?)(?:\s+between\b|\s+at\b|\s+from\b|\?|,|$)",
+                         re.I)
 
 
 @dataclass(frozen=True)
@@ -190,6 +194,9 @@ def observe(row: dict) -> Observables:
         noun, description = "camera", None
     else:
         description = descriptions[-1] if descriptions else None
+        if description is None and subject == "object":
+            m = _OF_SUBJECT.search(q)
+            description = m.group(1).strip() if m else None
         noun = head_noun(description)
     premise = premise_pose(q, row=row.get("ReSTI ID")) if task == "Pose Estimation" else None
     return Observables(task=task, source=source, video=video, sequence=sequence, camera=camera, operator=operator,
