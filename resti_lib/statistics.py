@@ -133,7 +133,7 @@ def strongest_attacks(table: pd.DataFrame, label: str) -> pd.DataFrame:
             continue
         b = best.iloc[0]
         out.append({"task": task, f"{label} strongest": b["attack"],
-                    f"{label} accuracy": f"{b['hits']}/{b['picked']} = {b['accuracy']:.1%}",
+                    f"{label} accuracy": f"{b['hits']:g}/{b['picked']} = {b['accuracy']:.1%}",
                     f"{label} significant rows": int(table[(table["task"] == task)]["significant"].sum())})
     return pd.DataFrame(out)
 
@@ -190,7 +190,7 @@ def min_detectable_accuracy(n: int, level: float, *, power: float = POWER, chanc
     k = critical_hits(n, level, chance)
     if n <= 0 or k > n:
         return float("nan")
-    f = lambda q: float(binom.sf(k - 1, n, q)) - power  # noqa: E731
+    f = lambda q: float(binom.sf(k - 1, n, q)) - power
     if f(chance) >= 0:
         return float(chance)
     return float(brentq(f, chance, 1.0, xtol=1e-6))

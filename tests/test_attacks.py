@@ -8,8 +8,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from resti_lib.options.attacks import (attack_table, binom_p, headline, holm, holm_adjusted, parse_rows, run_picks,
-                                       select, tie_aware_p)
+from resti_lib.options.attacks import (
+    attack_table,
+    binom_p,
+    headline,
+    holm,
+    holm_adjusted,
+    parse_rows,
+    run_picks,
+    select,
+    tie_aware_p,
+)
 from resti_lib.statistics import critical_hits, min_detectable_accuracy
 from tests.helpers import row
 
@@ -183,7 +192,7 @@ def test_select_and_unknown_names():
 
 @pytest.mark.shared
 def test_v5_orientation_matches_report(resti_v5_dir):
-    rows = [json.loads(line) for line in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
+    rows = [json.loads(line) for line in (resti_v5_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
     ranks = ["min", "rank_2", "median", "rank_4", "max"]
     t = attack_table(rows, attacks=ranks)
     o = t[(t["task"] == "Ego-Centric Orientation") & (t["source"] == "ALL")].set_index("attack")
@@ -199,7 +208,7 @@ def test_v5_letter_order_reveals_the_answer(resti_v5_dir):
     which the other four, in letter order, are strictly farther and farther (or nearer and nearer)."""
     from resti_lib import values as V
 
-    rows = [json.loads(line) for line in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
+    rows = [json.loads(line) for line in (resti_v5_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
     rows = [r for r in rows if r["Task"] == "Ego-Centric Orientation"]
     monotone = 0
     for r in rows:

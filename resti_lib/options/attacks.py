@@ -47,8 +47,8 @@ New attacks plug in with :func:`attack`. The learned families train classifiers 
 from __future__ import annotations
 
 from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Callable, Iterable
 
 import numpy as np
 import pandas as pd
@@ -602,9 +602,9 @@ def tie_aware_p(hits: float, ties: Iterable[int]) -> float:
     n = Counter(int(k) for k in ties)
     if not n:
         return 1.0
-    w_obs = int(round(hits * 60))
+    w_obs = round(hits * 60)
     if set(n) <= {1}:
-        return binom_p(int(round(hits)), n[1])
+        return binom_p(round(hits), n[1])
     offset = 12 * n.get(5, 0)                       # five-way ties always score 1/5
     pmf = np.array([1.0])                            # distribution of the k = 2..4 part, in units of 1/60
     for k in (2, 3, 4):
@@ -728,7 +728,7 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     if "family" not in picks.columns:
         picks = picks.assign(family=picks["attack"].map(lambda n: ATTACKS[n].family if n in ATTACKS else "option"))
     if "tied" not in picks.columns:
-        picks = picks.assign(tied=picks["pick"].map(lambda s: 0 if s is None or s != s else len(s)))
+        picks = picks.assign(tied=picks["pick"].map(lambda s: 0 if pd.isna(s) else len(s)))
     picks = picks.assign(hit=picks["hit"].astype(float))
     out = []
     for (name, task), g in picks.groupby(["attack", "task"], sort=False):
@@ -751,10 +751,11 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
                         "tied_rows": int(sum(1 for k in ties if k > 1))})
     df = pd.DataFrame(out)
     df = df[df["picked"] > 0]
-    order = {n: i for i, n in enumerate(ATTACKS)}
+    fam = {f: i for i, f in enumerate(FAMILIES)}
+    order = {n: (fam.get(a.family, len(fam)), i) for i, (n, a) in enumerate(ATTACKS.items())}
     task_order = {t: i for i, t in enumerate(TASKS)}
     src_order = {s: i for i, s in enumerate(SOURCES)}
-    df = df.assign(_a=df["attack"].map(lambda n: order.get(n, len(order))), _t=df["task"].map(task_order),
+    df = df.assign(_a=df["attack"].map(lambda n: order.get(n, (len(fam), len(order)))), _t=df["task"].map(task_order),
                    _s=df["source"].map(lambda s: src_order.get(s, 99)))
     df = df.sort_values(["_t", "_a", "_s"], kind="stable").drop(columns=["_a", "_t", "_s"]).reset_index(drop=True)
     df["p_holm"] = holm_adjusted(df["p_value"])
@@ -839,7 +840,7 @@ def headline(table: pd.DataFrame) -> pd.DataFrame:
         out.append({"task": task, "source": source, "n_rows": int(best["n_rows"]),
                     "significant": bool(len(sig)), "attack": best["attack"], "family": best["family"],
                     "accuracy": float(best["accuracy"]), "p_value": float(best["p_value"]),
-                    "p_holm": float(best["p_holm"]), "significant_attacks": int(len(sig)),
+                    "p_holm": float(best["p_holm"]), "significant_attacks": len(sig),
                     "families": ",".join(f for f in FAMILIES if f in set(sig["family"])),
                     "min_detectable": float(best["min_detectable"]), "underpowered": bool(best["underpowered"])})
     df = pd.DataFrame(out)
@@ -851,6 +852,6 @@ def headline(table: pd.DataFrame) -> pd.DataFrame:
 
 
 # The other families register on import (they use the registry above).
-from . import tells as _tells  # noqa: E402,F401
-from . import readers as _readers  # noqa: E402,F401
-from . import learned as _learned  # noqa: E402,F401
+from . import learned as _learned  # noqa: F401
+from . import readers as _readers  # noqa: F401
+from . import tells as _tells  # noqa: F401

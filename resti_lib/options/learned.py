@@ -36,8 +36,17 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from .. import values as V
-from .attacks import (ATTACKS, Batch, _project_so3, _rot_angle, attack, make_batch, parse_rows, picks_frame,
-                      run_picks, select, summarize_picks, top)
+from .attacks import (
+    ATTACKS,
+    Batch,
+    _project_so3,
+    _rot_angle,
+    attack,
+    make_batch,
+    picks_frame,
+    select,
+    top,
+)
 from .checks import ParsedRow
 
 NAME = "learned_blind"

@@ -43,8 +43,16 @@ from ..contract import parse_question
 from ..errors import InputError
 from ..sources.mapping import map_video
 
-__all__ = ["Observables", "observe", "observe_all", "head_noun", "premise_pose", "sequence_of", "implied_rate",
-           "RATE_OPERATORS"]
+__all__ = [
+    "RATE_OPERATORS",
+    "Observables",
+    "head_noun",
+    "implied_rate",
+    "observe",
+    "observe_all",
+    "premise_pose",
+    "sequence_of",
+]
 
 # Operators whose answer divided by the window is a speed (m/s), and operators whose answer is a rate.
 _PER_WINDOW = {"displacement": "speed", "path_length": "speed", "trajectory": "speed", "heading_change": "turn rate"}
@@ -54,16 +62,16 @@ RATE_OPERATORS = {"average_velocity": "speed", "average_speed": "speed", "accele
 _CUT = re.compile(r",|;|\(|\b(?:with|in|on|under|beside|near|next|against|behind|above|below|at|from|by|"
                   r"inside|into|onto|over|between|along|filled|viewed|wearing|holding|carrying|attached|"
                   r"adjacent|that|which|who|whose|where|parked|sitting|standing|lying|hanging|mounted|"
-                  r"covered|facing|full|placed|leaning|driving|walking|moving)\b", re.I)
-_PREFIX = re.compile(r"^(?:(?:target\s+)?object\s+description|objects?|target)\s*:\s*", re.I)
-_LEAD = re.compile(r"^(?:bounding\s+box(?:es)?\s+of\s+)?(?:the|a|an|two|three|some|several)\s+", re.I)
-_RATE_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*-?\s*second\s+(?:central\s+)?windows?", re.I)
+                  r"covered|facing|full|placed|leaning|driving|walking|moving)\b", re.IGNORECASE)
+_PREFIX = re.compile(r"^(?:(?:target\s+)?object\s+description|objects?|target)\s*:\s*", re.IGNORECASE)
+_LEAD = re.compile(r"^(?:bounding\s+box(?:es)?\s+of\s+)?(?:the|a|an|two|three|some|several)\s+", re.IGNORECASE)
+_RATE_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*-?\s*second\s+(?:central\s+)?windows?", re.IGNORECASE)
 _JSON_OBJ = re.compile(r"\{[^{}]*\}")
-_IDENTITY = re.compile(r"\bas the identity\b", re.I)
+_IDENTITY = re.compile(r"\bas the identity\b", re.IGNORECASE)
 # "... of the <subject> between t=..", "... of the <subject> at t=..", "... of the <subject>?"
 _OF_SUBJECT = re.compile(r"\b(?:velocity|speed|acceleration|displacement|distance traveled|trajectory|length|width|"
                          r"height|position|box) of (?:the |a |an )?(.+?)(?:\s+between\b|\s+at\b|\s+from\b|\?|,|$)",
-                         re.I)
+                         re.IGNORECASE)
 
 
 @dataclass(frozen=True)
