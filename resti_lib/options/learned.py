@@ -1,27 +1,36 @@
-"""A learned blind attacker: a classifier that scores each candidate from the five candidate strings.
+"""Learned blind attackers: classifiers that score each candidate without the video.
 
-Where the rule attacks of :mod:`resti_lib.options.attacks` test one shortcut each, this attacker
-combines them and learns regularities across rows (value ranges of a task, string forms, field
-structure). It sees, per candidate, only features computed from the row's five candidate strings
-and the row's task, source and letter layout:
+Where the rule attacks of :mod:`resti_lib.options.attacks` test one shortcut each, these attackers
+combine them and learn regularities across rows. Two attacks are registered:
 
-- the parsed value summaries of the candidate (scalar value and its logarithm, angle, trajectory
-  totals, box centre / log-dimensions / heading, pose translation / rotation angle), and for each
-  summary the candidate's rank in the row, the gaps to its neighbours, its distance to the row mean
-  (standardised) and to the row medoid;
-- for boxes and poses: distances to the centroid of each field group and the medoid scores, the
-  per-field median and modal votes (the rule attacks' statistics), the printed rotation entries,
-  and camera geometry (is a box centre in view; does a camera look where the reference camera
-  looks);
-- string length and digit count (absolute and relative to the row), the letter, the task and source
-  (one-hot), the relation label (one-hot) and the trajectory phrase structure.
+``learned_blind`` (family ``learned_option``)
+    sees, per candidate, only features computed from the row's five candidate strings and the row's
+    task, source and letter layout:
 
-A gradient-boosting classifier (scikit-learn, fixed ``random_state``) is trained on candidate
-rows with label "is the keyed candidate" and evaluated out of fold with :class:`GroupKFold` on
-``Video``: no video is in a training and a test fold at once. The pick of a row is the candidate
-with the highest out-of-fold score (abstain on an exact tie). The picks join the rule attacks'
-picks as attack ``learned_blind`` before the binomial tests and Holm's correction
-(:func:`attack_table_with_learned`).
+    - the parsed value summaries of the candidate (scalar value and its logarithm, angle, trajectory
+      totals, box centre / log-dimensions / heading, pose translation / rotation angle), and for each
+      summary the candidate's rank in the row, the gaps to its neighbours, its distance to the row
+      mean (standardised) and to the row medoid;
+    - for boxes and poses: distances to the centroid of each field group and the medoid scores, the
+      per-field median and modal votes (the rule attacks' statistics), the printed rotation entries,
+      and camera geometry (is a box centre in view; does a camera look where the reference camera
+      looks);
+    - string length and digit count (absolute and relative to the row), the letter, the task and
+      source (one-hot), the relation label (one-hot), the trajectory phrase structure, and the
+      letter-order concordance of :func:`attacks.letter_order <resti_lib.options.attacks>`.
+
+``learned_question`` (family ``learned_question``)
+    sees the same candidate features plus the question's: its type, subject kind, window length,
+    stated rate window, whether it prints a premise pose, hashed words of the question text and the
+    hashed subject noun (:mod:`resti_lib.options.observables`), and per candidate the rate it implies
+    over the window and its distance to the premise pose.
+
+A gradient-boosting classifier (scikit-learn, fixed ``random_state``, one thread) is trained on
+candidate rows with label "is the keyed candidate" and evaluated out of fold with
+:class:`~sklearn.model_selection.GroupKFold` on the rows' **source sequence** (read from the video
+name, or given as ``groups``): no sequence is in a training and a test fold at once, so the camera
+videos of one Waymo segment, which share answers, cannot leak into each other. The pick of a row is
+the set of candidates with the highest out-of-fold score (a tie is scored by its expected accuracy).
 """
 
 from __future__ import annotations
@@ -60,10 +69,10 @@ class LearnedConfig:
     """Classifier and cross-validation settings (all literal, so runs are reproducible)."""
 
     model: str = "gradient_boosting"  # or "random_forest"
-    n_splits: int = 5
+    n_splits: int = 4
     random_state: int = 0
-    max_iter: int = 100
-    learning_rate: float = 0.1
+    max_iter: int = 80
+    learning_rate: float = 0.12
     max_leaf_nodes: int = 15
     min_samples_leaf: int = 20
     n_estimators: int = 300
