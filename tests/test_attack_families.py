@@ -57,10 +57,13 @@ def test_family_finds_its_planted_tell(plant):
     assert others.empty, others
 
 
+def _displacement(plant, seed):
+    return [r for r in release_rows(plant, seed=seed) if r["Task"] == "Displacement & Path Length"]
+
+
 @pytest.mark.parametrize("plant,name", [("option", "learned_blind"), ("question", "learned_question")])
 def test_learned_families_find_planted_tells(plant, name):
-    t = attack_table(release_rows(plant, seed=1), families=("learned_option", "learned_question"),
-                     learned=FAST_LEARNED)
+    t = attack_table(_displacement(plant, 1), families=("learned_option", "learned_question"), learned=FAST_LEARNED)
     hit = t[(t["attack"] == name) & (t["task"] == "Displacement & Path Length") & (t["source"] == "ScanNet")].iloc[0]
     assert hit["significant"] and hit["accuracy"] > 0.3, hit
 
@@ -68,7 +71,7 @@ def test_learned_families_find_planted_tells(plant, name):
 def test_learned_question_reads_the_window_that_options_alone_lack():
     """The question plant: the answer implies a speed of ~0.3 m/s over its window, the distractors are drawn
     without the window. The value range alone tells little; the value over the window tells all."""
-    t = attack_table(release_rows("question", seed=2), families=("learned_option", "learned_question"),
+    t = attack_table(_displacement("question", 2), families=("learned_option", "learned_question"),
                      learned=FAST_LEARNED)
     cell = t[(t["task"] == "Displacement & Path Length") & (t["source"] == "ScanNet")].set_index("attack")
     assert cell.loc["learned_question", "accuracy"] > cell.loc["learned_blind", "accuracy"] + 0.1

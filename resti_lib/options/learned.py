@@ -69,10 +69,10 @@ class LearnedConfig:
     """Classifier and cross-validation settings (all literal, so runs are reproducible)."""
 
     model: str = "gradient_boosting"  # or "random_forest"
-    n_splits: int = 4
+    n_splits: int = 5
     random_state: int = 0
-    max_iter: int = 80
-    learning_rate: float = 0.12
+    max_iter: int = 60
+    learning_rate: float = 0.15
     max_leaf_nodes: int = 15
     min_samples_leaf: int = 20
     n_estimators: int = 300
