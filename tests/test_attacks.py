@@ -220,3 +220,15 @@ def test_v5_letter_order_reveals_the_answer(resti_v5_dir):
     t = headline(attack_table(rows, families="option"))
     cell = t.set_index("source").loc["ALL"]
     assert cell["significant"] and cell["attack"] == "letter_order" and cell["accuracy"] > 0.55
+
+
+def test_nearest_questions_match_brute_force():
+    from resti_lib.options.readers import nearest_questions
+
+    rng = np.random.default_rng(5)
+    vocab = [f"w{i}" for i in range(12)]
+    sets = [frozenset(rng.choice(vocab, size=rng.integers(1, 6), replace=False)) for _ in range(90)]
+    got = nearest_questions(sets, k=5, block=16)  # several blocks
+    for i, s in enumerate(sets):
+        sims = sorted(((len(s & t) / len(s | t), -j) for j, t in enumerate(sets) if j != i), reverse=True)[:5]
+        assert got[i] == [-x[1] for x in sims]

@@ -222,6 +222,39 @@ def _words(q: str) -> frozenset:
     return frozenset(w for w in _WORD.findall(str(q).lower()) if len(w) > 2)
 
 
+def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512) -> list:
+    """For each question, the indices of the ``k`` most similar *other* questions (Jaccard similarity of
+    their word sets; ties to the lower index), computed in blocks on a sparse word matrix so that a
+    group of n questions costs O(n²) arithmetic but only O(block × n) memory."""
+    from scipy.sparse import csr_matrix
+
+    n = len(word_sets)
+    if n < 2:
+        return [[] for _ in range(n)]
+    vocab: dict = {}
+    rows, cols = [], []
+    for i, ws in enumerate(word_sets):
+        for w in ws:
+            rows.append(i)
+            cols.append(vocab.setdefault(w, len(vocab)))
+    X = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, max(1, len(vocab))))
+    size = np.asarray(X.sum(axis=1)).ravel()
+    out = []
+    kk = min(k, n - 1)
+    for b0 in range(0, n, block):
+        inter = (X[b0:b0 + block] @ X.T).toarray()
+        union = size[b0:b0 + block, None] + size[None, :] - inter
+        sim = inter / np.maximum(union, 1.0)
+        for r in range(sim.shape[0]):
+            row = sim[r]
+            row[b0 + r] = -np.inf  # never itself
+            kth = np.partition(row, n - kk)[n - kk]  # the k-th largest similarity
+            cand = np.flatnonzero(row >= kth)
+            order = cand[np.lexsort((cand, -row[cand]))][:kk]  # similarity descending, then index
+            out.append(order.tolist())
+    return out
+
+
 @attack("nearest_question", ["scalar", "trajectory", "label"], "leave-one-out nearest neighbours: the candidate "
         "nearest to the median answer (labels: the most frequent answer) of the five most similar other "
         "questions of the same type", family="question", scope="batch")
@@ -231,14 +264,12 @@ def _nearest_question(batch: Batch):
     vals = [_value_scale(p) for p in batch.rows]
     groups = batch.groups(lambda i: _cell_qtype(batch, i))
     for idx in groups.values():
-        for i in idx:
+        neighbours = nearest_questions([words[i] for i in idx])
+        for i, nb in zip(idx, neighbours):
             p = batch.rows[i]
-            others = [j for j in idx if j != i]
-            if not others:
+            near = [idx[j] for j in nb]
+            if not near:
                 continue
-            wi = words[i]
-            sim = [(len(wi & words[j]) / max(1, len(wi | words[j])), -n) for n, j in enumerate(others)]
-            near = [others[-s[1]] for s in sorted(sim, reverse=True)[:NEIGHBOURS]]
             if vals[i] is not None:
                 m = float(np.median([vals[j][batch.rows[j].answer] for j in near]))
                 out[i] = top({k: -abs(x - m) for k, x in vals[i].items()})
