@@ -36,9 +36,10 @@ cell's ``n_rows`` and Holm's first-step level ``alpha / rows``) and ``underpower
 35%), ``tied_rows`` (rows scored as a tie).
 
 Rules that read other rows' answers (label prior, typical value, ...) always leave the row itself
-out; a rule whose direction is not known in advance (fewest or most decimals, nearest or farthest)
-chooses it per row from the other rows of the cell (leave-one-out), so the row's own answer never
-informs its pick.
+out (the new families leave its whole source sequence out); a rule whose direction is not known in
+advance (fewest or most decimals, nearest or farthest, or a middle rank) chooses it from the rows of
+the cell outside the row's cross-fitting fold (folds by source sequence, :func:`loo_direction`), so
+the row's own answer never informs its pick.
 
 New attacks plug in with :func:`attack`. The learned families train classifiers and are skipped by
 ``fast=True`` (``resti attack --fast``).
@@ -272,37 +273,64 @@ def _flat_fields(p: ParsedRow) -> dict | None:
     return None
 
 
-def extreme(values: dict, direction: str) -> frozenset:
-    """Letters of the largest (``direction="max"``) or smallest value; a five-way tie when all equal."""
-    sign = 1.0 if direction == "max" else -1.0
-    return top({k: sign * float(v) for k, v in values.items()})
+def extreme(values: dict, direction) -> frozenset:
+    """Letters of the largest (``direction="max"``, or rank 1) or smallest (``"min"``) value, or of the
+    value at descending rank ``direction`` (an int 1-5; ties share a rank). Non-finite values take no
+    rank; a five-way tie when nothing is finite or all values are equal."""
+    if direction == "max":
+        direction = 1
+    fin = sorted((float(v) for v in values.values() if np.isfinite(v)), reverse=True)
+    if not fin:
+        return ALL5
+    pos = len(fin) - 1 if direction == "min" else min(int(direction), len(fin)) - 1
+    target = fin[pos]
+    return frozenset(k for k, v in values.items() if np.isfinite(v)
+                     and abs(float(v) - target) <= TIE * max(1.0, abs(target)))
 
 
 def expected_hit(pick: frozenset | None, answer: str) -> float:
     return (1.0 / len(pick)) if pick and answer in pick else 0.0
 
 
-def loo_direction(batch: Batch, scores: list, *, group=None, directions=("max", "min")) -> list:
-    """Per row, the pick of the direction (largest or smallest score) that scores best on the *other*
-    rows of its group (default: its task and source cell); ``scores[i]`` is a ``letter -> value`` dict
-    or None (the rule does not apply). Ties between directions go to the first direction."""
+DIRECTIONS = ("max", "min", 2, 4, 3)
+FOLDS = 5
+
+
+def sequence_fold(sequence: str, folds: int = FOLDS) -> int:
+    """The cross-fitting fold of a source sequence (a stable hash: the same on every run and machine)."""
+    import zlib
+
+    return zlib.crc32(str(sequence).encode("utf-8")) % folds
+
+
+def loo_direction(batch: Batch, scores: list, *, group=None, directions=DIRECTIONS) -> list:
+    """Per row, the pick of the direction that scores best on the rows of its group (default: its task
+    and source cell) *outside its cross-fitting fold*: the largest score, the smallest, or the score at
+    descending rank 2, 4 or 3 (an answer kept away from both ends is a tell too).
+
+    Folds are drawn by source sequence (:func:`sequence_fold`), so neither the row's own answer nor the
+    answers of the other videos of its sequence (which may share it) choose its direction; a whole fold
+    shares one choice, so a row's own hit cannot flip it (as leaving out one row can when two directions
+    are nearly tied). ``scores[i]`` is a ``letter -> value`` dict or None (the rule does not apply). Ties
+    between directions go to the earlier one; a fold with no other rows takes the first direction."""
     groups = batch.cells() if group is None else group
+    fold = [sequence_fold(o.sequence) for o in batch.obs]
     out: list = [None] * len(batch)
     for idx in groups.values():
-        per = {d: [] for d in directions}
-        for i in idx:
+        idx = [i for i in idx if scores[i] is not None]
+        per = {d: [extreme(scores[i], d) for i in idx] for d in directions}
+        hits = {d: np.array([expected_hit(pk, batch.rows[i].answer) for pk, i in zip(per[d], idx)])
+                for d in directions}
+        folds = np.array([fold[i] for i in idx])
+        for f in sorted(set(folds.tolist())):
+            outside = folds != f
+            best, best_v = directions[0], -np.inf
             for d in directions:
-                per[d].append(None if scores[i] is None else extreme(scores[i], d))
-        tot = {d: sum(expected_hit(pk, batch.rows[i].answer) for pk, i in zip(per[d], idx)) for d in directions}
-        for j, i in enumerate(idx):
-            if scores[i] is None:
-                continue
-            best, best_v = None, -np.inf
-            for d in directions:
-                v = tot[d] - expected_hit(per[d][j], batch.rows[i].answer)
+                v = float(hits[d][outside].sum()) if outside.any() else 0.0
                 if v > best_v + 1e-12:
                     best, best_v = d, v
-            out[i] = per[best][j]
+            for j in np.flatnonzero(~outside):
+                out[idx[j]] = per[best][j]
     return out
 
 
@@ -448,10 +476,11 @@ def answer_key(v):
     return v.structure if isinstance(v, V.Trajectory) else v.key()
 
 
-def loo_label_prior(batch: Batch, key_of_row: Callable[[int], object]) -> list:
+def loo_label_prior(batch: Batch, key_of_row: Callable[[int], object], *, leave_out: str = "row") -> list:
     """Per row: the candidates whose label (trajectory: structure) is the most frequent answer among the
-    *other* rows with the same ``key_of_row`` (a five-way tie when no other row has a matching label);
-    None for rows with a None key or without label/trajectory candidates."""
+    *other* rows with the same ``key_of_row`` (``leave_out="sequence"``: the rows of other source
+    sequences); a five-way tie when no such row has a matching label; None for rows with a None key or
+    without label/trajectory candidates."""
     out: list = [None] * len(batch)
     groups = batch.groups(key_of_row)
     for idx in groups.values():
@@ -461,10 +490,17 @@ def loo_label_prior(batch: Batch, key_of_row: Callable[[int], object]) -> list:
             if all(isinstance(v, (V.Label, V.Trajectory)) for v in p.values.values()):
                 correct[i] = answer_key(p.values[p.answer])
         total = Counter(correct.values())
+        by_seq: dict = defaultdict(Counter)
+        if leave_out == "sequence":
+            for i, c in correct.items():
+                by_seq[batch.obs[i].sequence][c] += 1
         for i, c in correct.items():
             p = batch.rows[i]
             loo = total.copy()
-            loo[c] -= 1
+            if leave_out == "sequence":
+                loo.subtract(by_seq[batch.obs[i].sequence])
+            else:
+                loo[c] -= 1
             out[i] = top({k: float(loo.get(answer_key(v), 0)) for k, v in p.values.items()})
     return out
 
@@ -474,6 +510,25 @@ def loo_label_prior(batch: Batch, key_of_row: Callable[[int], object]) -> list:
         "of the same task and source, leave-one-out", scope="batch")
 def _label_prior(batch: Batch):
     return loo_label_prior(batch, lambda i: (batch.rows[i].task, batch.rows[i].source))
+
+
+@attack("answer_reuse", ["scalar", "box", "pose", "trajectory"], "candidates whose value is (or is not) the answer "
+        "of a row of another source sequence in the task/source cell: distractors drawn from the other rows' "
+        "answers leave the answer the one fresh value (direction cross-fitted)", scope="batch")
+def _answer_reuse(batch: Batch):
+    scores: list = [None] * len(batch)
+    for idx in batch.cells().values():
+        answers = Counter(batch.rows[i].values[batch.rows[i].answer].key() for i in idx)
+        by_seq: dict = defaultdict(Counter)
+        for i in idx:
+            by_seq[batch.obs[i].sequence][batch.rows[i].values[batch.rows[i].answer].key()] += 1
+        for i in idx:
+            p = batch.rows[i]
+            if not all(v.kind in ("scalar", "box", "pose", "trajectory") for v in p.values.values()):
+                continue
+            own = by_seq[batch.obs[i].sequence]  # leave the row's source sequence out
+            scores[i] = {k: float(answers.get(v.key(), 0) - own.get(v.key(), 0)) for k, v in p.values.items()}
+    return loo_direction(batch, scores)
 
 
 def candidate_vectors(p: ParsedRow) -> dict | None:

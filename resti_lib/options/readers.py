@@ -82,23 +82,23 @@ def _bandwidth(x: np.ndarray) -> float:
 
 
 def loo_density(batch: Batch, values: list, pop_key, *, noun_key=None) -> list:
-    """Per row: ``letter -> log density`` of each candidate's value among the answers' values of the
-    *other* rows with the same ``pop_key(i)`` (Gaussian kernel; bandwidth from all candidate values of
-    the population). With ``noun_key``, rows whose noun is shared by at least :data:`MIN_NOUN_ROWS`
-    other rows of the population use only those rows. ``values[i]``: ``letter -> float`` or None."""
+    """Per row: ``letter -> log density`` of each candidate's value among the answers' values of the rows
+    with the same ``pop_key(i)`` from *other source sequences* (Gaussian kernel; bandwidth from all
+    candidate values of the population, no answer used). With ``noun_key``, rows whose noun is shared
+    by at least :data:`MIN_NOUN_ROWS` such rows use only those. ``values[i]``: ``letter -> float`` or
+    None."""
     out: list = [None] * len(batch)
     groups = batch.groups(lambda i: pop_key(i) if values[i] is not None else None)
     for idx in groups.values():
         ans = np.array([values[i][batch.rows[i].answer] for i in idx])
         cands = np.array([[values[i][k] for k in LETTERS] for i in idx])
+        seqs = np.array([batch.obs[i].sequence for i in idx], dtype=object)
         h = _bandwidth(cands.ravel())
-        nouns = [noun_key(i) if noun_key else None for i in idx]
-        by_noun = Counter(n for n in nouns if n is not None)
+        nouns = np.array([noun_key(i) if noun_key else None for i in idx], dtype=object)
         for j, i in enumerate(idx):
-            mask = np.ones(len(idx), bool)
-            mask[j] = False
-            if noun_key and nouns[j] is not None and by_noun[nouns[j]] - 1 >= MIN_NOUN_ROWS:
-                mask &= np.array([n == nouns[j] for n in nouns])
+            mask = seqs != seqs[j]  # leave the row's whole source sequence out
+            if noun_key and nouns[j] is not None and int((mask & (nouns == nouns[j])).sum()) >= MIN_NOUN_ROWS:
+                mask &= nouns == nouns[j]
             pop = ans[mask]
             if len(pop) == 0:
                 continue
@@ -163,8 +163,9 @@ def _implied_rate_possible(batch: Batch):
     groups = batch.groups(lambda i: _rate_group(batch, i, rates) if rates[i] is not None else None)
     for (source, kind, _), idx in groups.items():
         ans = np.array([rates[i][1][batch.rows[i].answer] for i in idx])
+        seqs = np.array([batch.obs[i].sequence for i in idx], dtype=object)
         for j, i in enumerate(idx):
-            others = np.delete(ans, j)
+            others = ans[seqs != seqs[j]]
             bound = min(_limit(kind, source), POSSIBLE_MARGIN * float(others.max()) if len(others) else np.inf)
             ok = frozenset(k for k, x in rates[i][1].items() if x <= bound + 1e-12)
             out[i] = ok if ok and len(ok) < 5 else ALL5
@@ -222,10 +223,11 @@ def _words(q: str) -> frozenset:
     return frozenset(w for w in _WORD.findall(str(q).lower()) if len(w) > 2)
 
 
-def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512) -> list:
+def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512, exclude: list | None = None) -> list:
     """For each question, the indices of the ``k`` most similar *other* questions (Jaccard similarity of
-    their word sets; ties to the lower index), computed in blocks on a sparse word matrix so that a
-    group of n questions costs O(n²) arithmetic but only O(block × n) memory."""
+    their word sets; ties to the lower index), never one with the same ``exclude`` label (e.g. its
+    source sequence); computed in blocks on a sparse word matrix, so a group of n questions costs
+    O(n²) arithmetic but only O(block × n) memory."""
     from scipy.sparse import csr_matrix
 
     n = len(word_sets)
@@ -239,6 +241,7 @@ def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512) ->
             cols.append(vocab.setdefault(w, len(vocab)))
     X = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, max(1, len(vocab))))
     size = np.asarray(X.sum(axis=1)).ravel()
+    labels = np.array(exclude, dtype=object) if exclude is not None else None
     out = []
     kk = min(k, n - 1)
     for b0 in range(0, n, block):
@@ -248,8 +251,10 @@ def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512) ->
         for r in range(sim.shape[0]):
             row = sim[r]
             row[b0 + r] = -np.inf  # never itself
+            if labels is not None:
+                row[labels == labels[b0 + r]] = -np.inf
             kth = np.partition(row, n - kk)[n - kk]  # the k-th largest similarity
-            cand = np.flatnonzero(row >= kth)
+            cand = np.flatnonzero((row >= kth) & np.isfinite(row))
             order = cand[np.lexsort((cand, -row[cand]))][:kk]  # similarity descending, then index
             out.append(order.tolist())
     return out
@@ -264,7 +269,7 @@ def _nearest_question(batch: Batch):
     vals = [_value_scale(p) for p in batch.rows]
     groups = batch.groups(lambda i: _cell_qtype(batch, i))
     for idx in groups.values():
-        neighbours = nearest_questions([words[i] for i in idx])
+        neighbours = nearest_questions([words[i] for i in idx], exclude=[batch.obs[i].sequence for i in idx])
         for i, nb in zip(idx, neighbours):
             p = batch.rows[i]
             near = [idx[j] for j in nb]
@@ -358,7 +363,7 @@ def _camera_key(batch: Batch, i: int):
 @attack("metadata_label", ["label", "trajectory"], "most frequent answer label (trajectory: structure) among the "
         "other rows with the same camera in the video name, leave-one-out", family="metadata", scope="batch")
 def _metadata_label(batch: Batch):
-    return loo_label_prior(batch, lambda i: _camera_key(batch, i))
+    return loo_label_prior(batch, lambda i: _camera_key(batch, i), leave_out="sequence")
 
 
 @attack("metadata_value", ["scalar", "trajectory"], "candidate most or least typical of the answers of the other "

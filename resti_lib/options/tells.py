@@ -138,11 +138,12 @@ def _last_odd(batch: Batch):
 
 def loo_gaussian_scores(batch: Batch, feats: list, *, group=None, shrink: float = 0.1) -> list:
     """Per row: ``letter -> -(Mahalanobis distance)²`` of each candidate's feature vector under a Gaussian
-    fitted to the answers' vectors of the *other* rows of its group (default: task/source cell).
+    fitted to the answers' vectors of the rows of its group (default: task/source cell) from *other
+    source sequences*.
 
     ``feats[i]`` is ``letter -> vector`` (all of one length) or None. The covariance is shrunk towards
     its diagonal by ``shrink`` and floored, so small groups stay well-conditioned; a group with fewer
-    than ``dim + 3`` other rows gives None.
+    than ``dim + 3`` such rows gives None.
     """
     groups = batch.cells() if group is None else group
     out: list = [None] * len(batch)
@@ -158,11 +159,15 @@ def loo_gaussian_scores(batch: Batch, feats: list, *, group=None, shrink: float 
         if m - 1 < d + 3:
             continue
         s1, s2 = A.sum(0), A.T @ A
+        seqs = np.array([batch.obs[i].sequence for i in idx], dtype=object)
         for j, i in enumerate(idx):
-            a = A[j]
-            n = m - 1
-            mu = (s1 - a) / n
-            cov = (s2 - np.outer(a, a)) / n - np.outer(mu, mu)
+            same = seqs == seqs[j]  # leave the row's whole source sequence out
+            n = m - int(same.sum())
+            if n < d + 3:
+                continue
+            a1, a2 = A[same].sum(0), A[same].T @ A[same]
+            mu = (s1 - a1) / n
+            cov = (s2 - a2) / n - np.outer(mu, mu)
             cov = (1 - shrink) * cov + shrink * np.diag(np.diag(cov))
             cov += np.eye(d) * max(1e-9, 1e-6 * float(np.trace(cov)) / d)
             inv = np.linalg.inv(cov)
