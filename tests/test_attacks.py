@@ -23,8 +23,9 @@ from resti_lib.statistics import critical_hits, min_detectable_accuracy
 from tests.helpers import row
 
 
-def picks_of(rows, names):
+def picks_of(rows, names, direction=""):
     df = run_picks(parse_rows(rows), names, records=rows)
+    df = df[df["direction"].isin(["", direction])]
     return {(r.attack, r.rid): (None if pd.isna(r.pick) else r.pick) for r in df.itertuples()}
 
 
@@ -72,13 +73,33 @@ def test_constant_letter_and_binomial():
     assert allrow["p_value"] == pytest.approx(min(1.0, 5 * 0.104))
 
 
-def test_label_prior_is_leave_one_out():
+def test_label_prior_is_the_best_constant_label():
     cands = {"A": "Front", "B": "Left", "C": "Right", "D": "Front-Left", "E": "Front-Right"}
     rows = [row(task="Spatial Relation", source="Waymo", rid=i, cands=cands, answer=a)
             for i, a in enumerate(["A", "A", "B"])]
-    p = picks_of(rows, ["label_prior"])
-    assert p[("label_prior", 0)] == "AB"   # others: Front 1, Left 1 -> a tie of two
-    assert p[("label_prior", 2)] == "A"    # others: Front 2 -> picks Front, wrong
+    assert picks_of(rows, ["label_prior"], direction="Front")[("label_prior", 2)] == "A"
+    t = attack_table(rows, attacks=["label_prior"]).set_index("source")
+    # Front is the answer twice of three: P[X >= 2 | n=3, 1/5] = 0.104, times 5 labels tried (Bonferroni)
+    assert t.loc["Waymo", "direction"] == "Front" and t.loc["Waymo", "hits"] == 2
+    assert t.loc["Waymo", "p_value"] == pytest.approx(5 * 0.104)
+
+
+def test_label_prior_test_is_exact_on_uniform_labels():
+    """A majority vote that leaves one row out shares its rows' luck (its p-values are far too small on
+    uniform labels); the best constant label with a Bonferroni factor is exact: checked by simulation."""
+    rng = np.random.default_rng(11)
+    labels = ["Front", "Front-Left", "Front-Right", "Left", "Right"]
+    small = 0
+    for rep in range(60):
+        rows = []
+        for i in range(60):
+            order = rng.permutation(5)
+            cands = {k: labels[j] for k, j in zip("ABCDE", order)}
+            rows.append(row(task="Spatial Relation", source="Waymo", rid=i, cands=cands,
+                            answer="ABCDE"[rng.integers(5)]))
+        t = attack_table(rows, attacks=["label_prior"])
+        small += int(t[t["source"] == "Waymo"]["p_value"].iloc[0] < 0.1)
+    assert small <= 6 + 4  # at most 10% of 60 below 0.1, plus sampling slack (binomial sd 2.3)
 
 
 def _box(c, lwh=(1, 1, 1)):
@@ -104,8 +125,12 @@ def test_letter_order_finds_distractors_listed_outwards():
         vals = [1.2, 1.4, 1.6, 1.8]
         vals.insert(pos, 1.0)
         rows.append(row(rid=i, cands={k: f"{v:.2f}m" for k, v in zip("ABCDE", vals)}, answer="ABCDE"[pos]))
-    p = picks_of(rows, ["letter_order"])
+    p = picks_of(rows, ["letter_order"], direction="max")
     assert all(p[("letter_order", i)] == r["Answer"] for i, r in enumerate(rows))
+    t = attack_table(rows, attacks=["letter_order"]).set_index("source")
+    # the table keeps the best of the 5 directions: 6/6 hits, p = 5 * 0.2**6 (Bonferroni over directions)
+    assert t.loc["ScanNet", "direction"] == "max" and t.loc["ScanNet", "hits"] == 6
+    assert t.loc["ScanNet", "p_value"] == pytest.approx(5 * 0.2 ** 6)
 
 
 def test_label_order_finds_the_inserted_label():

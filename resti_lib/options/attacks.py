@@ -36,10 +36,10 @@ cell's ``n_rows`` and Holm's first-step level ``alpha / rows``) and ``underpower
 35%), ``tied_rows`` (rows scored as a tie).
 
 Rules that read other rows' answers (label prior, typical value, ...) always leave the row itself
-out (the new families leave its whole source sequence out); a rule whose direction is not known in
-advance (fewest or most decimals, nearest or farthest, or a middle rank) chooses it from the rows of
-the cell outside the row's cross-fitting fold (folds by source sequence, :func:`loo_direction`), so
-the row's own answer never informs its pick.
+out (the new families leave its whole source sequence out). A rule whose direction is not known in
+advance (fewest or most decimals, nearest or farthest, or a middle rank) is scored in every direction;
+the table keeps the best direction of each cell (column ``direction``) with its p-value multiplied by
+the number of directions (:class:`Directional`).
 
 New attacks plug in with :func:`attack`. The learned families train classifiers and are skipped by
 ``fast=True`` (``resti attack --fast``).
@@ -61,8 +61,8 @@ from .checks import ParsedRow, parse_row
 
 CHANCE = 1.0 / 5.0
 COLUMNS = ["attack", "family", "task", "source", "n_rows", "coverage", "picked", "hits", "accuracy", "chance",
-           "p_value", "p_holm", "significant", "min_detectable", "underpowered", "tied_rows"]
-PICK_COLUMNS = ["attack", "family", "rid", "task", "source", "pick", "answer", "tied", "hit"]
+           "p_value", "p_holm", "significant", "min_detectable", "underpowered", "tied_rows", "direction"]
+PICK_COLUMNS = ["attack", "family", "direction", "rid", "task", "source", "pick", "answer", "tied", "hit"]
 
 FAMILIES = {
     "option": "option-only rules on the candidate values",
@@ -293,45 +293,29 @@ def expected_hit(pick: frozenset | None, answer: str) -> float:
 
 
 DIRECTIONS = ("max", "min", 2, 4, 3)
-FOLDS = 5
 
 
-def sequence_fold(sequence: str, folds: int = FOLDS) -> int:
-    """The cross-fitting fold of a source sequence (a stable hash: the same on every run and machine)."""
-    import zlib
-
-    return zlib.crc32(str(sequence).encode("utf-8")) % folds
+def direction_name(d) -> str:
+    return d if isinstance(d, str) else f"rank {d}"
 
 
-def loo_direction(batch: Batch, scores: list, *, group=None, directions=DIRECTIONS) -> list:
-    """Per row, the pick of the direction that scores best on the rows of its group (default: its task
-    and source cell) *outside its cross-fitting fold*: the largest score, the smallest, or the score at
-    descending rank 2, 4 or 3 (an answer kept away from both ends is a tell too).
+class Directional(dict):
+    """An attack's picks in every direction of its score: ``{direction: [pick per row]}``.
 
-    Folds are drawn by source sequence (:func:`sequence_fold`), so neither the row's own answer nor the
-    answers of the other videos of its sequence (which may share it) choose its direction; a whole fold
-    shares one choice, so a row's own hit cannot flip it (as leaving out one row can when two directions
-    are nearly tied). ``scores[i]`` is a ``letter -> value`` dict or None (the rule does not apply). Ties
-    between directions go to the earlier one; a fold with no other rows takes the first direction."""
-    groups = batch.cells() if group is None else group
-    fold = [sequence_fold(o.sequence) for o in batch.obs]
-    out: list = [None] * len(batch)
-    for idx in groups.values():
-        idx = [i for i in idx if scores[i] is not None]
-        per = {d: [extreme(scores[i], d) for i in idx] for d in directions}
-        hits = {d: np.array([expected_hit(pk, batch.rows[i].answer) for pk, i in zip(per[d], idx)])
-                for d in directions}
-        folds = np.array([fold[i] for i in idx])
-        for f in sorted(set(folds.tolist())):
-            outside = folds != f
-            best, best_v = directions[0], -np.inf
-            for d in directions:
-                v = float(hits[d][outside].sum()) if outside.any() else 0.0
-                if v > best_v + 1e-12:
-                    best, best_v = d, v
-            for j in np.flatnonzero(~outside):
-                out[idx[j]] = per[best][j]
-    return out
+    A rule whose direction is not known in advance (fewest or most decimals, nearest or farthest, or a
+    middle rank: an answer kept away from both ends is a tell too) is scored in each direction; the
+    table keeps, per cell and for the pooled task, the direction with the most expected hits and
+    multiplies its p-value by the number of directions (Bonferroni), as for the best constant letter.
+    Choosing on the rows themselves and correcting keeps the test exact; choosing on other rows
+    (leave-one-out or cross-fitting) does not, because rows that choose for each other share their luck.
+    """
+
+
+def directional(batch: Batch, scores: list, *, directions=DIRECTIONS) -> Directional:
+    """The picks of every direction of a per-row score: the largest score, the smallest, or the score at
+    descending rank 2, 4 or 3 (:func:`extreme`). ``scores[i]`` is a ``letter -> value`` dict or None (the
+    rule does not apply)."""
+    return Directional({d: [None if sc is None else extreme(sc, d) for sc in scores] for d in directions})
 
 
 # ------------------------------------------------------------------------------- option-only rules
@@ -476,45 +460,89 @@ def answer_key(v):
     return v.structure if isinstance(v, V.Trajectory) else v.key()
 
 
-def loo_label_prior(batch: Batch, key_of_row: Callable[[int], object], *, leave_out: str = "row") -> list:
-    """Per row: the candidates whose label (trajectory: structure) is the most frequent answer among the
-    *other* rows with the same ``key_of_row`` (``leave_out="sequence"``: the rows of other source
-    sequences); a five-way tie when no such row has a matching label; None for rows with a None key or
-    without label/trajectory candidates."""
-    out: list = [None] * len(batch)
-    groups = batch.groups(key_of_row)
-    for idx in groups.values():
-        correct = {}
-        for i in idx:
+def _labelled(p: ParsedRow) -> bool:
+    return all(isinstance(v, (V.Label, V.Trajectory)) for v in p.values.values())
+
+
+def label_name(v) -> str:
+    """A readable name of a candidate's :func:`answer_key`: the label text, or the trajectory structure."""
+    if isinstance(v, V.Label):
+        return " ".join(v.text.split())
+    return "-".join(v.structure) if v.structure else "no movement"
+
+
+def constant_label(batch: Batch, rows: list | None = None) -> Directional:
+    """One direction per label (trajectory: structure) seen among the candidates: pick, in every row
+    whose candidates carry it, the candidates with that label (None in the other rows). The table keeps
+    the best label of each cell with a Bonferroni factor over the labels; each label's test is exact
+    (the answer is one of five exchangeable candidates). ``rows``: restrict to these row indices."""
+    rows = range(len(batch)) if rows is None else rows
+    keys: dict = {}
+    for i in rows:
+        if _labelled(batch.rows[i]):
+            for v in batch.rows[i].values.values():
+                keys.setdefault(answer_key(v), label_name(v))
+    out = Directional()
+    for key, name in keys.items():
+        picks: list = [None] * len(batch)
+        for i in rows:
             p = batch.rows[i]
-            if all(isinstance(v, (V.Label, V.Trajectory)) for v in p.values.values()):
-                correct[i] = answer_key(p.values[p.answer])
-        total = Counter(correct.values())
-        by_seq: dict = defaultdict(Counter)
-        if leave_out == "sequence":
-            for i, c in correct.items():
-                by_seq[batch.obs[i].sequence][c] += 1
-        for i, c in correct.items():
+            if _labelled(p):
+                hit = frozenset(k for k, v in p.values.items() if answer_key(v) == key)
+                picks[i] = hit or None
+        out[name] = picks
+    return out
+
+
+def split_halves(batch: Batch, learn: Callable[[list, list], dict]) -> Directional:
+    """A rule learned on one half of the source sequences and tested on the other, both ways: direction
+    ``"half 1 from half 0"`` picks in the rows of half 1 with what ``learn(train, test)`` (row indices)
+    returns for them (``{row: pick}``), and vice versa. A row's pick never depends on the answers of its
+    own half, so each direction's test is exact; the table keeps the better one (Bonferroni over two)."""
+    import zlib
+
+    half = [zlib.crc32(str(o.sequence).encode("utf-8")) % 2 for o in batch.obs]
+    out = Directional()
+    for test_half in (1, 0):
+        train = [i for i, h in enumerate(half) if h != test_half]
+        test = [i for i, h in enumerate(half) if h == test_half]
+        picks: list = [None] * len(batch)
+        for i, pk in learn(train, test).items():
+            picks[i] = pk
+        out[f"half {test_half} from half {1 - test_half}"] = picks
+    return out
+
+
+def majority_label(batch: Batch, train: list, test: list, key_of_row: Callable[[int], object]) -> dict:
+    """For each test row: the candidates whose label (trajectory: structure) is the most frequent answer
+    among the training rows with the same ``key_of_row`` (ties: every tied label); rows whose key has
+    no training row are left out."""
+    counts: dict = defaultdict(Counter)
+    for i in train:
+        k = key_of_row(i)
+        if k is not None and _labelled(batch.rows[i]):
             p = batch.rows[i]
-            loo = total.copy()
-            if leave_out == "sequence":
-                loo.subtract(by_seq[batch.obs[i].sequence])
-            else:
-                loo[c] -= 1
-            out[i] = top({k: float(loo.get(answer_key(v), 0)) for k, v in p.values.items()})
+            counts[k][answer_key(p.values[p.answer])] += 1
+    out = {}
+    for i in test:
+        k = key_of_row(i)
+        p = batch.rows[i]
+        if k is None or k not in counts or not _labelled(p):
+            continue
+        out[i] = top({c: float(counts[k].get(answer_key(v), 0)) for c, v in p.values.items()})
     return out
 
 
 @attack("label_prior", ["label", "trajectory"],
-        "most frequent correct label (trajectory: segment structure) among the other rows "
-        "of the same task and source, leave-one-out", scope="batch")
+        "the most frequent answer label (trajectory: segment structure) of the task and source: every label "
+        "tried as a constant pick, the best kept with a Bonferroni factor over the labels", scope="batch")
 def _label_prior(batch: Batch):
-    return loo_label_prior(batch, lambda i: (batch.rows[i].task, batch.rows[i].source))
+    return constant_label(batch)
 
 
 @attack("answer_reuse", ["scalar", "box", "pose", "trajectory"], "candidates whose value is (or is not) the answer "
         "of a row of another source sequence in the task/source cell: distractors drawn from the other rows' "
-        "answers leave the answer the one fresh value (direction cross-fitted)", scope="batch")
+        "answers leave the answer the one fresh value (in every direction)", scope="batch")
 def _answer_reuse(batch: Batch):
     scores: list = [None] * len(batch)
     for idx in batch.cells().values():
@@ -528,7 +556,7 @@ def _answer_reuse(batch: Batch):
                 continue
             own = by_seq[batch.obs[i].sequence]  # leave the row's source sequence out
             scores[i] = {k: float(answers.get(v.key(), 0) - own.get(v.key(), 0)) for k, v in p.values.items()}
-    return loo_direction(batch, scores)
+    return directional(batch, scores)
 
 
 def candidate_vectors(p: ParsedRow) -> dict | None:
@@ -564,9 +592,9 @@ def _order_concordance(p: ParsedRow) -> dict | None:
 
 @attack("letter_order", ["scalar", "trajectory", "box", "pose"], "candidate from which the other four, in letter "
         "order, get steadily farther (or nearer): distractors listed in the order they were generated around "
-        "the answer (direction leave-one-out)", scope="batch")
+        "the answer (in every direction)", scope="batch")
 def _letter_order(batch: Batch):
-    return loo_direction(batch, [_order_concordance(p) for p in batch.rows])
+    return directional(batch, [_order_concordance(p) for p in batch.rows])
 
 
 @attack("label_order", ["label"], "label whose removal leaves the other four in the usual order of the labels "
@@ -698,12 +726,17 @@ def _pick_text(pick: frozenset | None) -> str | None:
     return None if pick is None else "".join(sorted(pick))
 
 
-def _run_one(a: Attack, batch: Batch) -> list:
+def _run_one(a: Attack, batch: Batch) -> list | Directional:
     if a.scope == "batch":
-        picks = [as_pick(x) for x in a.fn(batch)]
-        if len(picks) != len(batch):
-            raise RuntimeError(f"attack {a.name!r} returned {len(picks)} picks for {len(batch)} rows")
-        return picks
+        res = a.fn(batch)
+        parts = res.items() if isinstance(res, Directional) else [(None, res)]
+        out = {}
+        for d, picks in parts:
+            picks = [as_pick(x) for x in picks]
+            if len(picks) != len(batch):
+                raise RuntimeError(f"attack {a.name!r} returned {len(picks)} picks for {len(batch)} rows")
+            out[d] = picks
+        return Directional(out) if isinstance(res, Directional) else out[None]
     kinds = set(a.kinds)
     out = []
     for i, p in enumerate(batch.rows):
@@ -716,18 +749,20 @@ def _run_one(a: Attack, batch: Batch) -> list:
     return out
 
 
-def picks_frame(batch: Batch, name: str, picks: list, family: str | None = None) -> pd.DataFrame:
-    """Per-row picks of one attack in the columns of :func:`run_picks`. Tasks where it never applies are
-    left out; the other rows of a task where it applies somewhere have ``pick`` None, so each cell
-    keeps its full row count."""
+def picks_frame(batch: Batch, name: str, picks, family: str | None = None) -> pd.DataFrame:
+    """Per-row picks of one attack in the columns of :func:`run_picks` (a :class:`Directional` attack has
+    one row per row and direction). Tasks where it never applies are left out; the other rows of a task
+    where it applies somewhere have ``pick`` None, so each cell keeps its full row count."""
     family = family or (ATTACKS[name].family if name in ATTACKS else "option")
-    applies = {batch.rows[i].task for i, pk in enumerate(picks) if pk is not None}
+    parts = [(direction_name(d), pk) for d, pk in picks.items()] if isinstance(picks, Directional) else [("", picks)]
+    applies = {batch.rows[i].task for _, pk in parts for i, x in enumerate(pk) if x is not None}
     recs = []
-    for p, pk in zip(batch.rows, picks):
-        if p.task not in applies:
-            continue
-        recs.append((name, family, p.rid, p.task, p.source, _pick_text(pk), p.answer, len(pk) if pk else 0,
-                     expected_hit(pk, p.answer) if pk else float("nan")))
+    for d, pk in parts:
+        for p, x in zip(batch.rows, pk):
+            if p.task not in applies:
+                continue
+            recs.append((name, family, d, p.rid, p.task, p.source, _pick_text(x), p.answer, len(x) if x else 0,
+                         expected_hit(x, p.answer) if x else float("nan")))
     return pd.DataFrame.from_records(recs, columns=PICK_COLUMNS)
 
 
@@ -758,8 +793,9 @@ def select(families=None, attacks=None, *, fast: bool = False) -> list[str]:
 def run_picks(rows: list[ParsedRow], names: Iterable[str] | None = None, *, records: list[dict] | None = None,
               batch: Batch | None = None, **settings) -> pd.DataFrame:
     """Per-row picks of the named attacks (default: every non-learned attack): columns ``attack, family,
-    rid, task, source, pick`` (the picked letters, e.g. ``"A"`` or ``"AC"`` for a tie; None where the
-    attack does not apply), ``answer, tied`` (size of the picked set), ``hit`` (expected hit)."""
+    direction`` (empty, or one row per direction of a :class:`Directional` attack), ``rid, task,
+    source, pick`` (the picked letters, e.g. ``"A"`` or ``"AC"`` for a tie; None where the attack does
+    not apply), ``answer, tied`` (size of the picked set), ``hit`` (expected hit)."""
     if batch is None:
         batch, _ = make_batch(rows, records, **settings)
     names = list(names) if names is not None else select(fast=True)
@@ -774,6 +810,8 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     """Aggregate per-row picks into the attack table (see the module docstring for the columns).
 
     ``tests`` maps attack name -> comparisons inside it (Bonferroni factor; default from the registry).
+    An attack with several directions keeps, per cell, the direction with the most expected hits and
+    its p-value is multiplied by the number of directions too.
     """
     from ..statistics import UNDERPOWERED_AT, attack_power
 
@@ -785,25 +823,34 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     if "tied" not in picks.columns:
         picks = picks.assign(tied=picks["pick"].map(lambda s: 0 if pd.isna(s) else len(s)))
     picks = picks.assign(hit=picks["hit"].astype(float))
+    if "direction" not in picks.columns:
+        picks = picks.assign(direction="")
     out = []
     for (name, task), g in picks.groupby(["attack", "task"], sort=False):
         family = g["family"].iloc[0]
         for source, gs in [(s, gs) for s, gs in g.groupby("source", sort=False)] + [("ALL", g)]:
-            n_rows = len(gs)
-            made = gs[gs["pick"].notna()]
-            picked = len(made)
-            hits = float(made["hit"].sum())
-            ties = made["tied"].astype(int).tolist()
-            if name == "constant_letter" and source == "ALL":
-                # best constant letter over the whole task, not the union of per-source choices
-                counts = Counter(gs["answer"])
-                hits = float(max(counts.values())) if counts else 0.0
-                picked, ties = n_rows, [1] * n_rows
-            p = min(1.0, tie_aware_p(hits, ties) * tests.get(name, 1)) if picked else 1.0
+            options = []
+            for direction, gd in gs.groupby("direction", sort=False):
+                n_rows = len(gd)
+                made = gd[gd["pick"].notna()]
+                picked = len(made)
+                hits = float(made["hit"].sum())
+                ties = made["tied"].astype(int).tolist()
+                if name == "constant_letter" and source == "ALL":
+                    # best constant letter over the whole task, not the union of per-source choices
+                    counts = Counter(gd["answer"])
+                    hits = float(max(counts.values())) if counts else 0.0
+                    picked, ties = n_rows, [1] * n_rows
+                options.append((direction, n_rows, picked, hits, ties))
+            options = [o for o in options if o[2] > 0] or options[:1]  # directions that apply to the cell
+            # the direction with the most expected hits (the first on a tie), Bonferroni over directions
+            direction, n_rows, picked, hits, ties = max(options, key=lambda o: (o[3], -options.index(o)))
+            factor = tests.get(name, 1) * len(options)
+            p = min(1.0, tie_aware_p(hits, ties) * factor) if picked else 1.0
             out.append({"attack": name, "family": family, "task": task, "source": source, "n_rows": n_rows,
                         "coverage": picked / n_rows if n_rows else 0.0, "picked": picked, "hits": hits,
                         "accuracy": hits / picked if picked else float("nan"), "chance": CHANCE, "p_value": p,
-                        "tied_rows": int(sum(1 for k in ties if k > 1))})
+                        "tied_rows": int(sum(1 for k in ties if k > 1)), "direction": direction})
     df = pd.DataFrame(out)
     df = df[df["picked"] > 0]
     fam = {f: i for i, f in enumerate(FAMILIES)}

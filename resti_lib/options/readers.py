@@ -6,15 +6,15 @@ Question-aware rules use the observables of :mod:`resti_lib.options.observables`
 - ``implied_rate_typical``: the rate a candidate implies over the question's window (a displacement
   or path over the window is a speed, a heading change a turn rate; speeds and accelerations are
   rates) scored by its density among the other rows' answer rates of the same source, rate kind and
-  subject (leave-one-out, log scale);
+  subject (the row's source sequence left out, log scale);
 - ``implied_rate_possible``: the candidates whose implied rate is physically possible (at most the
   limit of :data:`PHYSICAL_LIMITS` and at most twice the largest rate among the other rows' answers);
 - ``premise_distance``: the pose candidate nearest to (or farthest from) the premise pose printed in
   the question, candidates that repeat the premise left out;
 - ``typical_value``: the candidate most (or least) typical of the answers to the other questions of
-  the same type and subject noun (leave-one-out);
-- ``nearest_question``: leave-one-out nearest neighbours: the answers of the five most similar other
-  questions (word overlap) of the same type, and the candidate nearest to their median (scalars) or
+  the same type and subject noun (the row's source sequence left out);
+- ``nearest_question``: nearest neighbours: the answers of the five most similar questions of other
+  source sequences (word overlap) of the same type, and the candidate nearest to their median (scalars) or
   most frequent among them (labels, trajectory structures).
 
 Cross-row reveals look at the other rows of the same video or source sequence: a candidate printed in
@@ -22,12 +22,14 @@ another row's question (``xrow_question``), among another row's candidates (``xr
 to another row's answer (``xrow_answer``; this one reads other rows' keys, as a reader who knows the
 answer to the other question does).
 
-Metadata: the Waymo camera in the video name (``metadata_label`` for labels and trajectory
-structures, ``metadata_value`` for numbers), each a leave-one-out prior among the other rows with the
-same camera.
+Metadata: the Waymo camera in the video name: ``metadata_label`` (labels and trajectory structures)
+learns the most frequent answer per camera on one half of the source sequences and tests it on the
+other (both ways; a majority vote that leaves one row out is not an exact test, its rows share their
+luck), ``metadata_value`` (numbers) scores candidates by their density among the answers of other
+sequences with the same camera.
 
 Where the direction of a rule is not known in advance, it is chosen per row from the other rows of its
-task/source cell (:func:`resti_lib.options.attacks.loo_direction`).
+task/source cell (:func:`resti_lib.options.attacks.directional`).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 
 from .. import LETTERS
 from .. import values as V
-from .attacks import ALL5, Batch, answer_key, attack, loo_direction, loo_label_prior, top
+from .attacks import ALL5, Batch, answer_key, attack, directional, majority_label, split_halves, top
 
 # Largest physically possible rates by rate kind (and source for camera speeds): handheld indoor and
 # desktop cameras, road vehicles; accelerations and turn rates of any of them.
@@ -142,12 +144,12 @@ def _rate_group(batch: Batch, i: int, rates: list):
 
 @attack("implied_rate_typical", ["scalar", "trajectory"], "candidate whose implied rate over the question's window "
         "is most or least typical of the other rows' answer rates (same source, rate kind and subject; "
-        "direction leave-one-out)", family="question", scope="batch")
+        "in every direction)", family="question", scope="batch")
 def _implied_rate_typical(batch: Batch):
     rates = _rates(batch)
     logs = [None if r is None else {k: float(np.log(x + 1e-4)) for k, x in r[1].items()} for r in rates]
     dens = loo_density(batch, logs, lambda i: _rate_group(batch, i, rates), noun_key=lambda i: _noun(batch, i))
-    return loo_direction(batch, dens)
+    return directional(batch, dens)
 
 
 def _limit(kind: str, source: str) -> float:
@@ -189,7 +191,7 @@ def _pose_distances(p, premise) -> dict | None:
 
 @attack("premise_distance", ["pose"], "pose candidate nearest to (or farthest from) the premise pose printed in "
         "the question, in translation and rotation (each scaled by the row's median), candidates repeating the "
-        "premise left out (direction leave-one-out)", family="question", scope="batch")
+        "premise left out (in every direction)", family="question", scope="batch")
 def _premise_distance(batch: Batch):
     scores: list = []
     for p, o in zip(batch.rows, batch.obs):
@@ -204,16 +206,16 @@ def _premise_distance(batch: Batch):
         st = np.median([x[0] for x in real]) or 1.0
         sr = np.median([x[1] for x in real]) or 1.0
         scores.append({k: (-(x[0] / st + x[1] / sr) if x is not None else np.nan) for k, x in d.items()})
-    return loo_direction(batch, scores)
+    return directional(batch, scores)
 
 
 @attack("typical_value", ["scalar", "trajectory"], "candidate most or least typical of the answers to the other "
-        "questions of the same type (and subject noun when shared by enough rows), leave-one-out; direction "
-        "leave-one-out", family="question", scope="batch")
+        "questions of the same type (and subject noun when shared by enough rows) in other source sequences "
+        "(in every direction)", family="question", scope="batch")
 def _typical_value(batch: Batch):
     vals = [_value_scale(p) for p in batch.rows]
     dens = loo_density(batch, vals, lambda i: _cell_qtype(batch, i), noun_key=lambda i: _noun(batch, i))
-    return loo_direction(batch, dens)
+    return directional(batch, dens)
 
 
 _WORD = re.compile(r"[a-z]+")
@@ -260,9 +262,9 @@ def nearest_questions(word_sets: list, k: int = NEIGHBOURS, block: int = 512, ex
     return out
 
 
-@attack("nearest_question", ["scalar", "trajectory", "label"], "leave-one-out nearest neighbours: the candidate "
-        "nearest to the median answer (labels: the most frequent answer) of the five most similar other "
-        "questions of the same type", family="question", scope="batch")
+@attack("nearest_question", ["scalar", "trajectory", "label"], "nearest neighbours: the candidate nearest to the "
+        "median answer (labels: the most frequent answer) of the five most similar questions of the same type "
+        "in other source sequences", family="question", scope="batch")
 def _nearest_question(batch: Batch):
     out: list = [None] * len(batch)
     words = [_words(r.get("Question")) for r in batch.records]
@@ -311,7 +313,7 @@ def _xrow_scores(batch: Batch, count) -> list:
 
 
 @attack("xrow_question", ["scalar", "box", "pose", "trajectory"], "candidate printed verbatim (spacing aside) in "
-        "another question of the same video or source sequence (direction leave-one-out)", family="cross_row",
+        "another question of the same video or source sequence (in every direction)", family="cross_row",
         scope="batch")
 def _xrow_question(batch: Batch):
     flat_q = [_flat(r.get("Question") or "") for r in batch.records]
@@ -326,11 +328,11 @@ def _xrow_question(batch: Batch):
         key = p.values[k].key()
         return sum(1 for j in others if pats[s].search(flat_q[j]) or (premise_keys[j] is not None
                                                                      and premise_keys[j] == key))
-    return loo_direction(batch, _xrow_scores(batch, count))
+    return directional(batch, _xrow_scores(batch, count))
 
 
 @attack("xrow_options", ["scalar", "box", "pose", "trajectory"], "candidate whose value recurs (or never recurs) "
-        "among the candidates of the other rows of the same video or source sequence (direction leave-one-out)",
+        "among the candidates of the other rows of the same video or source sequence (in every direction)",
         family="cross_row", scope="batch")
 def _xrow_options(batch: Batch):
     keys = [{v.key() for v in p.values.values()} for p in batch.rows]
@@ -338,11 +340,11 @@ def _xrow_options(batch: Batch):
     def count(i, k, others):
         key = batch.rows[i].values[k].key()
         return sum(1 for j in others if key in keys[j])
-    return loo_direction(batch, _xrow_scores(batch, count))
+    return directional(batch, _xrow_scores(batch, count))
 
 
 @attack("xrow_answer", ["scalar", "box", "pose", "trajectory"], "candidate equal to the answer of another row of "
-        "the same video or source sequence (reads the other rows' keys; direction leave-one-out)",
+        "the same video or source sequence (reads the other rows' keys; in every direction)",
         family="cross_row", scope="batch")
 def _xrow_answer(batch: Batch):
     ans = [p.values[p.answer].key() for p in batch.rows]
@@ -350,7 +352,7 @@ def _xrow_answer(batch: Batch):
     def count(i, k, others):
         key = batch.rows[i].values[k].key()
         return sum(1 for j in others if ans[j] == key)
-    return loo_direction(batch, _xrow_scores(batch, count))
+    return directional(batch, _xrow_scores(batch, count))
 
 
 # ------------------------------------------------------------------------------------ metadata
@@ -360,16 +362,19 @@ def _camera_key(batch: Batch, i: int):
     return None if o.camera is None else (batch.rows[i].task, batch.rows[i].source, o.qtype, o.camera)
 
 
-@attack("metadata_label", ["label", "trajectory"], "most frequent answer label (trajectory: structure) among the "
-        "other rows with the same camera in the video name, leave-one-out", family="metadata", scope="batch")
+@attack("metadata_label", ["label", "trajectory"], "most frequent answer label (trajectory: structure) per camera in "
+        "the video name, learned on one half of the source sequences and tested on the other (both ways)",
+        family="metadata", scope="batch")
 def _metadata_label(batch: Batch):
-    return loo_label_prior(batch, lambda i: _camera_key(batch, i), leave_out="sequence")
+    return split_halves(batch, lambda train, test: majority_label(batch, train, test,
+                                                                   lambda i: _camera_key(batch, i)))
 
 
 @attack("metadata_value", ["scalar", "trajectory"], "candidate most or least typical of the answers of the other "
-        "rows with the same camera in the video name and question type, leave-one-out (direction leave-one-out)",
+        "rows of other source sequences with the same camera in the video name and question type (in every "
+        "direction)",
         family="metadata", scope="batch")
 def _metadata_value(batch: Batch):
     vals = [_value_scale(p) for p in batch.rows]
     dens = loo_density(batch, vals, lambda i: _camera_key(batch, i))
-    return loo_direction(batch, dens)
+    return directional(batch, dens)

@@ -9,14 +9,14 @@ Formatting tells
     per-candidate count (or the size of the candidate's layout class); the attack picks the
     candidates at the extreme. Whether the answer sits at the high or the low end is not known in
     advance, so the direction is chosen per row from the other rows of its task/source cell
-    (:func:`resti_lib.options.attacks.loo_direction`).
+    (:func:`resti_lib.options.attacks.directional`).
 
 Field typicality
     Real answers have correlated fields (a box's length, width and height; a camera's translation
     and rotation over one interval). Distractors drawn field by field are atypical combinations.
-    Each attack fits a Gaussian to the *other* rows' answers of the cell (leave-one-out, in log
-    units where sizes are multiplicative) and scores each candidate by its Mahalanobis distance;
-    the direction (most or least typical) is chosen leave-one-out as above.
+    Each attack fits a Gaussian to the answers of the cell's rows from other source sequences (in
+    log units where sizes are multiplicative) and scores each candidate by its Mahalanobis
+    distance, in every direction (most or least typical, or a middle rank) as above.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import LETTERS
 from .. import values as V
-from .attacks import Batch, attack, loo_direction
+from .attacks import Batch, attack, directional
 
 NUMERIC = ("scalar", "box", "pose", "trajectory")
 
@@ -87,33 +87,33 @@ def _class_sizes(batch: Batch, key) -> list:
 
 
 @attack("fmt_negative_zero", NUMERIC, "candidates whose count of printed negative zeros (-0, -0.0) is the odd "
-        "one out or the common one (direction leave-one-out)", family="format", scope="batch")
+        "one out or the common one (in every direction)", family="format", scope="batch")
 def _neg_zero(batch: Batch):
-    return loo_direction(batch, _class_sizes(batch, lambda s: sum(_is_negative_zero(t) for t in _tokens(s))))
+    return directional(batch, _class_sizes(batch, lambda s: sum(_is_negative_zero(t) for t in _tokens(s))))
 
 
 @attack("fmt_layout", NUMERIC, "candidates whose layout (key order, spacing, signs, separators) is the odd one out "
-        "or the common one (direction leave-one-out)", family="format", scope="batch")
+        "or the common one (in every direction)", family="format", scope="batch")
 def _layout(batch: Batch):
-    return loo_direction(batch, _class_sizes(batch, skeleton))
+    return directional(batch, _class_sizes(batch, skeleton))
 
 
-@attack("fmt_zero_last_digits", NUMERIC, "most or fewest printed numbers ending in 0 (direction leave-one-out)",
+@attack("fmt_zero_last_digits", NUMERIC, "most or fewest printed numbers ending in 0 (in every direction)",
         family="format", scope="batch")
 def _zero_last(batch: Batch):
-    return loo_direction(batch, _per_candidate(batch, lambda s: sum(_digits(t)[-1:] == "0" for t in _tokens(s))))
+    return directional(batch, _per_candidate(batch, lambda s: sum(_digits(t)[-1:] == "0" for t in _tokens(s))))
 
 
-@attack("fmt_decimals", NUMERIC, "most or fewest printed decimals in total (direction leave-one-out)",
+@attack("fmt_decimals", NUMERIC, "most or fewest printed decimals in total (in every direction)",
         family="format", scope="batch")
 def _decimals_attack(batch: Batch):
-    return loo_direction(batch, _per_candidate(batch, lambda s: sum(_decimals(t) for t in _tokens(s))))
+    return directional(batch, _per_candidate(batch, lambda s: sum(_decimals(t) for t in _tokens(s))))
 
 
-@attack("fmt_significant_digits", NUMERIC, "most or fewest significant digits in total (direction leave-one-out)",
+@attack("fmt_significant_digits", NUMERIC, "most or fewest significant digits in total (in every direction)",
         family="format", scope="batch")
 def _sig(batch: Batch):
-    return loo_direction(batch, _per_candidate(batch, lambda s: sum(_significant(t) for t in _tokens(s))))
+    return directional(batch, _per_candidate(batch, lambda s: sum(_significant(t) for t in _tokens(s))))
 
 
 def _last_digit_odd(p) -> dict | None:
@@ -129,9 +129,9 @@ def _last_digit_odd(p) -> dict | None:
 
 
 @attack("fmt_last_digit_odd", NUMERIC, "most or fewest fields whose last printed digit differs from every other "
-        "candidate's at that field (direction leave-one-out)", family="format", scope="batch")
+        "candidate's at that field (in every direction)", family="format", scope="batch")
 def _last_odd(batch: Batch):
-    return loo_direction(batch, [(_last_digit_odd(p) if _numeric(p) else None) for p in batch.rows])
+    return directional(batch, [(_last_digit_odd(p) if _numeric(p) else None) for p in batch.rows])
 
 
 # ------------------------------------------------------------------------------------ field typicality
@@ -184,21 +184,21 @@ def _boxes(p) -> bool:
 
 
 @attack("typical_box_size", ["box"], "box whose (log length, log width, log height) is most or least typical of "
-        "the other rows' answers (Gaussian, leave-one-out; direction leave-one-out)", family="typicality",
+        "the answers of other source sequences (Gaussian; in every direction)", family="typicality",
         scope="batch")
 def _typical_box_size(batch: Batch):
     feats = [({k: np.log(np.maximum(np.array(p.values[k].lwh, float), 1e-6)) for k in LETTERS} if _boxes(p) else None)
              for p in batch.rows]
-    return loo_direction(batch, loo_gaussian_scores(batch, feats))
+    return directional(batch, loo_gaussian_scores(batch, feats))
 
 
 @attack("typical_box_rotation", ["box"], "box whose rotation (the nine entries of the box-to-camera matrix) is most "
         "or least typical of the other rows' answers: real boxes stand on the ground, so their up axis follows "
-        "gravity in the camera frame (direction leave-one-out)", family="typicality", scope="batch")
+        "gravity in the camera frame (in every direction)", family="typicality", scope="batch")
 def _typical_box_rotation(batch: Batch):
     feats = [({k: np.array(p.values[k].R, float).ravel() for k in LETTERS}
               if _boxes(p) and all(v.R is not None for v in p.values.values()) else None) for p in batch.rows]
-    return loo_direction(batch, loo_gaussian_scores(batch, feats))
+    return directional(batch, loo_gaussian_scores(batch, feats))
 
 
 def _placement(v) -> np.ndarray:
@@ -209,10 +209,10 @@ def _placement(v) -> np.ndarray:
 
 
 @attack("typical_box_placement", ["box"], "box whose image direction and log depth (x/z, y/z, log z) is most or "
-        "least typical of the other rows' answers (direction leave-one-out)", family="typicality", scope="batch")
+        "least typical of the other rows' answers (in every direction)", family="typicality", scope="batch")
 def _typical_box_placement(batch: Batch):
     feats = [({k: _placement(p.values[k]) for k in LETTERS} if _boxes(p) else None) for p in batch.rows]
-    return loo_direction(batch, loo_gaussian_scores(batch, feats))
+    return directional(batch, loo_gaussian_scores(batch, feats))
 
 
 def _rel_motion(v: V.Pose, premise: V.Pose | None) -> np.ndarray:
@@ -227,7 +227,7 @@ def _rel_motion(v: V.Pose, premise: V.Pose | None) -> np.ndarray:
 
 
 @attack("typical_pose_motion", ["pose"], "pose whose (log translation, rotation angle) from the premise pose is "
-        "most or least typical of the other rows' answers (direction leave-one-out)", family="typicality",
+        "most or least typical of the other rows' answers (in every direction)", family="typicality",
         scope="batch")
 def _typical_pose_motion(batch: Batch):
     feats = []
@@ -236,4 +236,4 @@ def _typical_pose_motion(batch: Batch):
             feats.append({k: _rel_motion(p.values[k], o.premise) for k in LETTERS})
         else:
             feats.append(None)
-    return loo_direction(batch, loo_gaussian_scores(batch, feats))
+    return directional(batch, loo_gaussian_scores(batch, feats))
