@@ -542,7 +542,7 @@ def _label_prior(batch: Batch):
 
 @attack("answer_reuse", ["scalar", "box", "pose", "trajectory"], "candidates whose value is (or is not) the answer "
         "of a row of another source sequence in the task/source cell: distractors drawn from the other rows' "
-        "answers leave the answer the one fresh value (in every direction)", scope="batch")
+        "answers leave the answer the one fresh value (in every direction)", family="typicality", scope="batch")
 def _answer_reuse(batch: Batch):
     scores: list = [None] * len(batch)
     for idx in batch.cells().values():
