@@ -50,7 +50,7 @@ def test_metadata_camera_decides_the_waymo_relation(v5_rows, v5_table):
 
 def test_same_video_verbatim_answers_in_waymo_pose(v5_rows, v5_table):
     pose = [r for r in v5_rows if r["Task"] == "Pose Estimation" and r["Source"] == "Waymo"]
-    flat = lambda s: "".join(s.split())  # noqa: E731
+    flat = lambda s: "".join(s.split())
     revealed = sum(any(flat(r["Answer Detail"]) in flat(o["Question"]) for o in pose
                        if o["Video"] == r["Video"] and o is not r) for r in pose)
     assert revealed >= 90  # of 121
