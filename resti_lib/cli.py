@@ -7,7 +7,12 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import InputError
+from .errors import BusyError, ContractError, InputError, OutputError, RestiError
+
+# Exit codes: 0 success; 1 the work ran and found a failure (verify FAILED, a notebook or an invariant
+# failed); 2 bad input or a refused output folder (one line on stderr); 3 the output folder is busy.
+EXIT_FAILED, EXIT_INPUT, EXIT_BUSY = 1, 2, 3
+MAX_SKIPPED_SHOWN = 10
 
 
 def _cmd_verify(a) -> int:
@@ -15,7 +20,37 @@ def _cmd_verify(a) -> int:
 
     v = verify_path(a.path, legacy=a.legacy)
     print(to_json(v) if a.json else format_text(v))
-    return 0 if v["passed"] else 1
+    return 0 if v["passed"] else EXIT_FAILED
+
+
+def attack_rows(rel) -> tuple[list[dict], dict]:
+    """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
+    a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
+    is not finite or not physically possible)."""
+    from . import LETTERS
+    from .options.checks import ROW_CHECKS, parse_row
+
+    bad: dict = {}
+    for p in rel.problems:
+        if p.file is not None and rel.accepted_file is not None and p.file == str(rel.accepted_file):
+            bad.setdefault(p.row, f"{p.field}: {p.message}")
+    usable = []
+    for i, r in enumerate(rel.accepted.to_dict("records")):
+        rid = next((r[c] for c in ("ReSTI ID", "Legacy Row Key") if isinstance(r.get(c), str) and r[c].strip()), i)
+        if rid in bad:
+            continue
+        pr = parse_row(r, rid)
+        if pr.errors:
+            bad[rid] = "; ".join(f"Candidates.{k}: {m}" for k, m in sorted(pr.errors.items()))
+        elif not pr.complete:
+            bad[rid] = f"Candidates: letters {sorted(pr.candidates)}, expected A-E"
+        elif pr.answer not in LETTERS:
+            bad[rid] = f"Answer: {pr.answer!r} is not a letter A-E"
+        elif msg := ROW_CHECKS["finite_values"](pr) or ROW_CHECKS["value_ranges"](pr):
+            bad[rid] = msg
+        else:
+            usable.append(r)
+    return usable, bad
 
 
 def _cmd_attack(a) -> int:
@@ -27,10 +62,21 @@ def _cmd_attack(a) -> int:
         names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
     except ValueError as e:
         print(f"resti attack: {e}", file=sys.stderr)
-        return 2
+        return EXIT_INPUT
     rel = load_release(a.path, strict=False)
-    table = attack_table(rel.accepted.to_dict("records"), families="all", attacks=names, alpha=a.alpha,
-                         progress=True)
+    records, skipped = attack_rows(rel)
+    if rel.meta_error is not None:
+        print(f"resti attack: input error: file {rel.meta_file}: {rel.meta_error} (the rows are attacked; "
+              "run resti verify)", file=sys.stderr)
+    if skipped:
+        shown = "; ".join(f"{rid}: {why}" for rid, why in list(skipped.items())[:MAX_SKIPPED_SHOWN])
+        more = f" (and {len(skipped) - MAX_SKIPPED_SHOWN} more)" if len(skipped) > MAX_SKIPPED_SHOWN else ""
+        print(f"resti attack: {len(skipped)} of {len(rel.accepted)} rows of {rel.accepted_file} skipped as "
+              f"structurally bad: {shown}{more}", file=sys.stderr)
+    if not records:
+        print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
+        return EXIT_INPUT
+    table = attack_table(records, families="all", attacks=names, alpha=a.alpha, progress=True)
     head = format_headline(headline(table), alpha=a.alpha, tests=len(table))
     if a.format == "json":
         print(head, file=sys.stderr)
@@ -47,24 +93,27 @@ def _cmd_attack(a) -> int:
             shown[c] = shown[c].map(lambda x: f"{x:.3g}")
         print(head + "\n")
         print(shown.to_markdown(index=False))
+    if skipped or rel.meta_error is not None:
+        return EXIT_INPUT
     if a.fail_on_significant and bool(table["significant"].any()):
         print(f"resti attack: {int(table['significant'].sum())} Holm-significant attack rows "
               "(--fail-on-significant)", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0
 
 
 def _cmd_reoption(a) -> int:
-    from .reoption import ReoptionError, reoption_release
+    from .reoption import reoption_release
     from .runner import load_params
 
     params = load_params(a.params) if a.params else {}
-    seed = a.seed if a.seed is not None else int(params.get("seed", 0))
-    try:
-        res = reoption_release(a.release, a.out, seed=seed, options=params.get("options"))
-    except ReoptionError as e:
-        print(f"resti reoption: {e}", file=sys.stderr)
-        return 1
+    seed = a.seed if a.seed is not None else params.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise InputError(f"seed {seed!r} is not an integer", file=a.params, field="seed")
+    opts = params.get("options")
+    if opts is not None and not isinstance(opts, dict):
+        raise InputError(f"options must be a mapping, got {type(opts).__name__}", file=a.params, field="options")
+    res = reoption_release(a.release, a.out, seed=seed, options=opts)
     counts = res.meta["counts"]
     print(f"wrote {res.out_dir}: {counts['accepted']} rows rebuilt, {counts['excluded']} exclusions copied, "
           f"seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
@@ -79,8 +128,9 @@ def _cmd_measure(a) -> int:
 
 
 def _cmd_synth(a) -> int:
-    from .synth import generate
+    from .synth import check_scale, generate
 
+    check_scale(a.scale)
     summary = generate(Path(a.out), seed=a.seed, scale=a.scale)
     print(json.dumps(summary, indent=1, default=str))
     return 0
@@ -120,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "
                         "new distractors and letters)")
     ro.add_argument("--release", default="${SHARED}/data/resti_v5", help="input release folder or file")
-    ro.add_argument("--out", required=True, help="output folder (replaced atomically)")
+    ro.add_argument("--out", required=True, help="output folder: new, empty or an earlier resti release "
+                    "(replaced atomically; never the input)")
     ro.add_argument("--seed", type=int, default=None, help="option seed (default: params seed, else 0)")
     ro.add_argument("--params", default=None, help="params YAML with seed and options (e.g. params/reoption.yaml)")
     ro.set_defaults(fn=_cmd_reoption)
@@ -133,7 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("synth", help="generate the mini-world (sources + legacy benchmark + manifest)")
     s.add_argument("out")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--scale", type=int, default=None)
+    s.add_argument("--scale", type=int, default=None,
+                   help="copies of the 2,064-row legacy structure (1 to 1000; default: the small world)")
     s.set_defaults(fn=_cmd_synth)
 
     r = sub.add_parser("run", help="the main job: notebooks -> release, tables, figures, report")
@@ -144,13 +196,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def exit_code(e: BaseException) -> int:
+    if isinstance(e, BusyError):
+        return EXIT_BUSY
+    if isinstance(e, (InputError, OutputError, ContractError, OSError)):
+        return EXIT_INPUT
+    return EXIT_FAILED
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; every resti error ends as one line on stderr and a non-zero exit code."""
     args = build_parser().parse_args(argv)
     try:
         return args.fn(args)
-    except InputError as e:
-        print(f"resti {args.cmd}: input error: {e}", file=sys.stderr)
-        return 2
+    except RestiError as e:
+        kind = {InputError: "input error", OutputError: "output refused", BusyError: "busy"}.get(type(e), "error")
+        print(f"resti {args.cmd}: {kind}: {e}", file=sys.stderr)
+        return exit_code(e)
+    except OSError as e:  # the file system refused a read or a write (permissions, disk full, ...)
+        where = f" {e.filename}" if getattr(e, "filename", None) else ""
+        print(f"resti {args.cmd}: system error:{where}: {e.strerror or e}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print(f"resti {args.cmd}: interrupted; the previous outputs are intact", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

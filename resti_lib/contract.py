@@ -1,10 +1,16 @@
-"""Question contracts: legacy question text -> ``C = (s, e, t, F, q, u, σ, D)`` plus missing parts.
+"""Question contracts ``C = (s, e, t, F, q, u, σ, D)`` and the readers every task builds on.
 
-The parser reads what a question states (target, time, frame, statistic, unit) and records what it
-leaves out in ``missing``: ``time`` (no time named although the value depends on one), ``subject``
+A contract says what a question measures: source sequence ``s``, entity ``e``, times ``t``, frame
+``F``, operator ``q``, unit ``u``, answer format ``σ`` (:attr:`Contract.format`) and distractor
+policy ``D`` (:attr:`Contract.distractors`). Each task reads its own contract from a legacy row
+(``Task.read_contract`` in :mod:`resti_lib.tasks`) with the readers here: times named in the text
+(:func:`find_times`), the unit tag (:func:`find_unit`), a printed pose (:func:`find_pose_json`), the
+object description (:func:`description`), an object pair (:func:`object_pair`), and σ and D of the
+legacy row (:func:`legacy_format`, :func:`legacy_distractors`). What the question leaves out is
+listed in ``missing``: ``time`` (no time named although the value depends on one), ``subject``
 (two possible subjects), ``frame`` (no coordinate frame / axes / matrix direction), ``statistic``
-("average speed" without saying path or displacement), ``unit`` (no unit tag). The task modules
-then resolve what the source can resolve and state it in the rewritten question, or exclude.
+(a rate or distance without saying path or displacement), ``unit`` (no unit tag). The task then
+resolves what the source can resolve and states it in the rewritten question, or excludes.
 
 Times in the text win over the row's ``time_start``/``time_end`` when both exist; the row fields
 are the fallback (the legacy evaluator prints them before the question).
@@ -14,32 +20,47 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 
+from . import values as V
+from .adjudicate import answer_layer_defects
 from .errors import InputError
 from .sources.mapping import map_video
 
 NUM = r"[-+]?\d+(?:\.\d+)?"
 _T_RANGE = [
-    re.compile(rf"from\s+(?:t\s*=\s*)?({NUM})\s*s(?:econds?)?\s+to\s+(?:t\s*=\s*)?({NUM})\s*s", re.I),
+    re.compile(rf"from\s+(?:t\s*=\s*)?({NUM})\s*s(?:econds?)?\s+to\s+(?:t\s*=\s*)?({NUM})\s*s", re.IGNORECASE),
     re.compile(rf"between\s+(?:t\s*=\s*|source pose timestamps\s+)?({NUM})\s*(?:s\b|seconds?\b)?\s*and\s+"
-               rf"(?:t\s*=\s*)?({NUM})\s*s", re.I),
+               rf"(?:t\s*=\s*)?({NUM})\s*s", re.IGNORECASE),
 ]
 _T_POINT = [
-    re.compile(rf"\bat\s+t\s*=\s*({NUM})\s*s\b", re.I),
-    re.compile(rf"\bat\s+({NUM})\s*s(?:econds?)?\b", re.I),
-    re.compile(r"\bsource frame\s+(\d+)\s*\((\d+(?:\.\d+)?)\s*FPS", re.I),
+    re.compile(rf"\bat\s+t\s*=\s*({NUM})\s*s\b", re.IGNORECASE),
+    re.compile(rf"\bat\s+({NUM})\s*s(?:econds?)?\b", re.IGNORECASE),
+    re.compile(r"\bsource frame\s+(\d+)\s*\((\d+(?:\.\d+)?)\s*FPS", re.IGNORECASE),
 ]
-_UNIT_TAG = re.compile(r"\(unit:\s*([^)]+)\)", re.I)
+_UNIT_TAG = re.compile(r"\(unit:\s*([^)]+)\)", re.IGNORECASE)
 _JSON_OBJ = re.compile(r"\{[^{}]*\}")
+_PROMPT_OBJECT = re.compile(r"^(?:Target object description|Object description|Object|Objects):\s*(.+?)\.?(?:;|$)",
+                            re.IGNORECASE)
+_PAIR = (r"distance between (?:the |a |an )?(.+?) and (?:the |a |an )?(.+?)\?",
+         r"position of (?:the |a |an )?(.+?) relative to (?:the |a |an )?(.+?)(?: at |\?)",
+         r"relative to (?:the |a |an )?(.+?), is (?:the |a |an )?(.+?) to the")
 
-CAMERA_WORDS = ("camera", "ego", "our car", "the vehicle we", "recording vehicle")
-AMBIGUOUS_SUBJECTS = ("the car", "the vehicle")  # on Waymo: the ego car or another tracked car
+#: Question-layer defect code of each missing contract part (the parts a task reports).
+MISSING_DEFECTS = {"time": None, "subject": "ambiguous_subject", "frame": None, "statistic": None,
+                   "unit": "unit_tag_missing"}
 
 
 @dataclass
 class Contract:
-    """The measurement contract of one question (see module docstring)."""
+    """The measurement contract of one question (see module docstring).
+
+    ``format`` (σ): how the answer is printed -- ``{"kind", "unit", "decimals", ...}``.
+    ``distractors`` (D): how the four wrong options are made -- ``{"policy", ...}``; for a legacy
+    row what its candidates show, for a repaired row the option stage's policy and rule.
+    ``legacy``: on a repaired contract, what the legacy row stated (its ``missing`` parts, σ and D).
+    """
 
     task: str
     source: str
@@ -55,12 +76,17 @@ class Contract:
     unit_stated: bool = False
     params: dict = field(default_factory=dict)
     missing: list = field(default_factory=list)
+    format: dict = field(default_factory=dict)
+    distractors: dict = field(default_factory=dict)
+    legacy: dict = field(default_factory=dict)
+
+    def miss(self, part: str) -> None:
+        """Record a part the question leaves out (once)."""
+        if part not in self.missing:
+            self.missing.append(part)
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-    def to_json(self) -> str:
-        return json.dumps(self.to_dict(), sort_keys=True, default=float)
 
 
 def find_times(text: str) -> tuple[list[float], bool]:
@@ -95,143 +121,100 @@ def find_pose_json(text: str) -> dict | None:
     return None
 
 
-def _description(row: dict, question: str) -> str | None:
-    """The object description: from the prompt when present, else the noun phrase of the question."""
-    prompt = (row.get("Prompt") or "").strip()
-    m = re.match(r"^(?:Target object description|Object description|Object|Objects):\s*(.+?)\.?(?:;|$)",
-                 prompt, re.I)
+def question_text(row: dict) -> str:
+    """The row's question with whitespace runs collapsed."""
+    return " ".join(str(row.get("Question") or "").split())
+
+
+def description(row: dict, question: str, patterns: Iterable[str] = ()) -> str | None:
+    """The object description: from the prompt when present, else the first group of the first
+    task pattern (regular expressions) that matches the question."""
+    m = _PROMPT_OBJECT.match((row.get("Prompt") or "").strip())
     if m:
         return m.group(1).strip().rstrip(".")
-    for rx in (r"bounding box of (?:the |a |an )?(.+?)[.?]?$", r"(?:length|width|height) of (?:the |a |an )?(.+?)\?",
-               r"close is the camera to (?:the |a |an )?(.+?)(?: at |\?)", r"How far has (?:the |a |an )?(.+?) traveled",
-               r"How quickly is (?:the |a |an )?(.+?) accelerating"):
-        m = re.search(rx, question, re.I)
+    for rx in patterns:
+        m = re.search(rx, question, re.IGNORECASE)
         if m:
             return m.group(1).strip()
     return None
 
 
-def _pair(question: str) -> tuple[str, str] | None:
-    for rx in (r"distance between (?:the |a |an )?(.+?) and (?:the |a |an )?(.+?)\?",
-               r"position of (?:the |a |an )?(.+?) relative to (?:the |a |an )?(.+?)(?: at |\?)",
-               r"relative to (?:the |a |an )?(.+?), is (?:the |a |an )?(.+?) to the"):
-        m = re.search(rx, question, re.I)
+def object_pair(question: str) -> tuple[str, str] | None:
+    """The two descriptions of a pair question ("distance between A and B", "A relative to B")."""
+    for rx in _PAIR:
+        m = re.search(rx, question, re.IGNORECASE)
         if m:
             return m.group(1).strip(), m.group(2).strip()
     return None
 
 
-def parse_question(row: dict, *, video_map: dict | None = None) -> Contract:
-    """Parse one legacy (or ReSTI) row into its contract. Never raises on odd text: what cannot be
-    read is reported in ``operator == "unknown"`` or ``missing``."""
-    task, source, video = row["Task"], row["Source"], row["Video"]
-    q = " ".join(str(row.get("Question") or "").split())
-    ql = q.lower()
+def legacy_format(row: dict) -> dict:
+    """σ of a legacy row, read from its Answer Detail: the value kind, unit and printed decimals."""
     try:
-        seq = map_video(video, video_map)
+        v = V.parse(row.get("Answer Detail"))
+    except InputError as e:
+        return {"kind": None, "readable": False, "problem": e.message}
+    out: dict = {"kind": v.kind}
+    if isinstance(v, V.Scalar):
+        out.update({"kind": "angle" if v.is_angle else "scalar", "unit": v.unit, "decimals": v.decimals})
+    elif isinstance(v, (V.Pose, V.Box)):
+        out["decimals"] = v.decimals
+        if isinstance(v, V.Box):
+            out["rotation"] = "matrix" if v.R is not None else ("heading" if v.heading is not None else "none")
+    elif isinstance(v, V.Trajectory):
+        out["move_decimals"] = max((d for (k, _), d in zip(v.segments, v.segment_decimals) if k == "move"),
+                                   default=None)
+    return out
+
+
+def legacy_distractors(row: dict) -> dict:
+    """D of a legacy row, read from its candidates: how many, whether the key points at the
+    detail, the offsets of scalar and angle candidates from the detail, and the row's answer-layer
+    findings (the checks of :mod:`resti_lib.adjudicate`, codes of :mod:`resti_lib.defects`)."""
+    cands = row.get("Candidates") if isinstance(row.get("Candidates"), dict) else {}
+    out: dict = {"policy": "as printed in the legacy row", "n_candidates": len(cands),
+                 "key_is_detail": cands.get(row.get("Answer")) == row.get("Answer Detail"),
+                 "findings": sorted(answer_layer_defects(row)[0])}
+    try:
+        d = V.parse(row.get("Answer Detail"))
+        vals = {k: V.parse(v) for k, v in cands.items()}
+    except InputError:
+        return out
+    if isinstance(d, V.Scalar) and all(isinstance(v, V.Scalar) and v.dimension == d.dimension for v in vals.values()):
+        off = [v.si - d.si for v in vals.values()]
+        if d.is_angle:
+            off = [float(V.wrap_degrees(x)) for x in off]
+        out["offsets_from_detail"] = sorted(round(float(x), 6) for x in off)
+    return out
+
+
+def base_contract(row: dict, operator: str = "unknown", *, video_map: dict | None = None) -> tuple[Contract, str]:
+    """The parts every task reads the same way: source, sequence, camera, the times named in the
+    text (else the row's ``time_start``/``time_end``), the unit tag, σ and D. Returns the contract
+    and the whitespace-normalised question."""
+    q = question_text(row)
+    try:
+        seq = map_video(row["Video"], video_map)
         sequence, camera = seq.sequence, seq.camera
     except InputError:
         sequence, camera = None, None
     times, stated = find_times(q)
     t0, t1 = float(row.get("time_start") or 0.0), float(row.get("time_end") or 0.0)
     unit = find_unit(q)
-    c = Contract(task=task, source=source, video=video, sequence=sequence, camera=camera,
-                 operator="unknown", times=times or [t0, t1], time_stated=stated, unit=unit,
-                 unit_stated=unit is not None)
+    c = Contract(task=row["Task"], source=row["Source"], video=row["Video"], sequence=sequence, camera=camera,
+                 operator=operator, times=times or [t0, t1], time_stated=stated, unit=unit,
+                 unit_stated=unit is not None, format=legacy_format(row),
+                 distractors=legacy_distractors(row))
+    return c, q
 
-    def miss(part: str):
-        if part not in c.missing:
-            c.missing.append(part)
 
-    if task == "3D Video Grounding":
-        c.operator = "box_in_camera"
-        c.entity = {"kind": "object", "description": _description(row, q)}
-        c.times = times[:1] if stated else [t0]
-        c.frame = "OpenCV camera" if "opencv" in ql else None
-        if not stated:
-            miss("time")
-        if c.frame is None:
-            miss("frame")
-    elif task == "Ego-Centric Orientation":
-        c.operator = "heading_change"
-        c.entity = {"kind": "camera"}
-        c.times = times if stated and len(times) == 2 else [t0, t1]
-        if not ("gravity" in ql or "horizontal plane" in ql or "perpendicular to gravity" in ql):
-            miss("frame")
-        if not stated:
-            miss("time")
-    elif task == "Pose Estimation":
-        c.operator = "pose"
-        c.entity = {"kind": "camera"}
-        premise = find_pose_json(q)
-        all_t = [float(x) for x in re.findall(rf"t\s*=\s*({NUM})\s*s", q)]
-        if len(all_t) >= 2:
-            c.params["premise_time"], c.times, c.time_stated = all_t[0], [all_t[-1]], True
-        elif len(all_t) == 1:
-            c.params["premise_time"] = 0.0 if "initial" in ql else t0
-            c.times, c.time_stated = [all_t[0]], True
-        else:
-            c.params["premise_time"], c.times = (0.0 if "initial" in ql else t0), [t1]
-            miss("time")
-        if premise is not None:
-            c.params["premise_pose"] = premise
-        if not any(w in ql for w in ("world coordinate", "coordinate frame", "same coordinate", "opencv")):
-            miss("frame")
-    elif task in ("Displacement & Path Length", "Speed & Acceleration"):
-        if "accelerat" in ql:
-            c.operator = "acceleration"
-        elif task == "Speed & Acceleration":
-            c.operator = "average_speed" if "speed" in ql else "average_velocity"
-            if "average speed" in ql and not any(w in ql for w in ("path", "displacement", "endpoint")):
-                miss("statistic")
-        elif any(w in ql for w in ("total distance", "trajectory length", "path length", "distance traveled")) \
-                and "displacement" not in ql:
-            c.operator = "path_length"
-        elif "how far" in ql:
-            c.operator = "displacement"
-            miss("statistic")
-        else:
-            c.operator = "displacement"
-        desc = _description(row, q)
-        if any(w in ql for w in CAMERA_WORDS):
-            c.entity = {"kind": "camera"}
-        elif source == "Waymo" and any(ql.startswith(f"how far has {w[4:]}") or f"has {w}" in ql
-                                       for w in AMBIGUOUS_SUBJECTS) and desc in ("car", "vehicle"):
-            c.entity = {"kind": "ambiguous", "candidates": ["camera", "object"], "description": desc}
-            miss("subject")
-        else:
-            c.entity = {"kind": "object", "description": desc}
-        c.times = times if stated and len(times) == 2 else [t0, t1]
-        if not stated:
-            miss("time")
-    elif task == "Trajectory Description":
-        c.operator = "trajectory"
-        c.entity = {"kind": "camera"}
-        c.times = times if stated and len(times) == 2 else [t0, t1]
-    elif task == "Dimensional Measurement":
-        m = re.search(r"\b(length|width|height)\b", ql)
-        pair = _pair(q)
-        if pair and "distance" in ql:
-            c.operator = "object_distance"
-            c.entity = {"kind": "object_pair", "descriptions": list(pair)}
-        elif "close is the camera" in ql or "from the camera" in ql or "camera to" in ql:
-            c.operator = "distance_to_camera"
-            c.entity = {"kind": "object", "description": _description(row, q)}
-        elif m:
-            c.operator = "dimension"
-            c.params["dimension"] = m.group(1)
-            c.entity = {"kind": "object", "description": _description(row, q)}
-        c.times = times[:1] if stated else [t0]
-    elif task == "Spatial Relation":
-        pair = _pair(q)
-        if "mounted" in ql:
-            c.operator = "mounted_relation"
-            c.entity = {"kind": "camera"}
-        elif pair:
-            c.operator = "relative_position"
-            c.entity = {"kind": "object_pair", "descriptions": list(pair)}
-            c.times = times[:1] if stated else [t0]
-    if c.operator in ("displacement", "path_length", "average_velocity", "average_speed", "acceleration",
-                      "dimension", "distance_to_camera", "object_distance") and not c.unit_stated:
-        miss("unit")
-    return c
+def interval(c: Contract, row: dict) -> list[float]:
+    """``[t0, t1]``: the two times of the text, else the row's ``time_start``/``time_end``."""
+    if c.time_stated and len(c.times) == 2:
+        return list(c.times)
+    return [float(row.get("time_start") or 0.0), float(row.get("time_end") or 0.0)]
+
+
+def instant(c: Contract, row: dict) -> list[float]:
+    """``[t]``: the first time of the text, else the row's ``time_start``."""
+    return list(c.times[:1]) if c.time_stated else [float(row.get("time_start") or 0.0)]

@@ -44,7 +44,12 @@ _DEFECTS = [
     Defect("unit_tag_missing", "question", "unit tag",
            "the question does not state the unit of the answer"),
     Defect("statistic_unnamed", "question", "unnamed statistic",
-           "a rate question names 'average speed' but the value is displacement / time"),
+           "the question leaves the statistic open ('average speed', 'how far has X traveled') and the "
+           "value is the endpoint-displacement reading"),
+    Defect("duplicate_row", "question", "structural",
+           "the legacy row is an exact copy of another row of the benchmark (every field equal)"),
+    Defect("time_past_video_end", "question", "structural",
+           "an asked time lies after the end of the video (the last source sample plus one interval)"),
     # source layer
     Defect("grounding_alignment_omitted", "source", "source geometry",
            "camera-frame box computed as P(t)^-1 c_ann (axis alignment omitted)"),
@@ -54,6 +59,8 @@ _DEFECTS = [
            "pose matrix taken from a different timestamp than the one asked"),
     Defect("speed_is_displacement_over_time", "source", "source geometry",
            "'average speed' value equals endpoint displacement / elapsed time"),
+    Defect("distance_traveled_is_displacement", "source", "source geometry",
+           "'how far has X traveled' value equals the endpoint displacement, not the path length"),
     Defect("trajectory_10m_grid", "source", "source geometry",
            "trajectory distances rounded to a 10 m grid"),
     Defect("value_mismatch", "source", "source geometry",
@@ -93,13 +100,7 @@ REASONS: dict[str, str] = {
     "undefined_dimension": "the asked dimension has no convention for this object",
     "invalid_pose_at_time": "the source pose is invalid at the asked time",
     "malformed_row": "the legacy row cannot be parsed",
+    "duplicate_row": "an exact copy of an earlier legacy row, which is kept and audited once",
+    "time_past_video_end": "an asked time lies after the end of the video",
     "unsupported_question": "the question does not match a known contract for the task",
 }
-
-
-def layer_of(code: str) -> str:
-    return DEFECTS[code].layer
-
-
-def category_of(code: str) -> str:
-    return DEFECTS[code].category

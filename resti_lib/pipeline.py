@@ -16,13 +16,40 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from . import paths
+from .errors import InputError
 from .runner import NotebookError, load_params, notebook_parameters, run_notebook
+
+
+def check_stages(cfg: dict, params_file) -> None:
+    """Every stage of the params names an existing notebook and a readable params file
+    (:class:`InputError` naming the params file, the stage and the field)."""
+    where = paths.resolve(params_file)
+    stages = cfg.get("stages") or []
+    if not isinstance(stages, list):
+        raise InputError("stages must be a list of {notebook, params, wave}", file=where, field="stages")
+    for i, st in enumerate(stages):
+        if not isinstance(st, dict):
+            raise InputError("a stage must be a mapping {notebook, params, wave}", file=where, row=f"stage {i}",
+                             field="stages")
+        name = st.get("notebook")
+        if not isinstance(name, str) or not name or "/" in name or "\\" in name or name.startswith("."):
+            raise InputError(f"notebook {name!r} is not a notebook name", file=where, row=f"stage {i}",
+                             field="notebook")
+        if not (paths.NOTEBOOKS / f"{name}.ipynb").is_file():
+            known = sorted(p.stem for p in paths.NOTEBOOKS.glob("*.ipynb"))
+            raise InputError(f"no notebook {name!r} in {paths.NOTEBOOKS} (known: {', '.join(known)})",
+                             file=where, row=f"stage {i}", field="notebook")
+        if st.get("params") is not None:
+            if not isinstance(st["params"], str):
+                raise InputError(f"params {st['params']!r} is not a path", file=where, row=f"stage {i}",
+                                 field="params")
+            load_params(st["params"])
 
 
 def stage_params(stage: dict, common: dict) -> tuple[Path, dict]:
     nb = paths.NOTEBOOKS / f"{stage['notebook']}.ipynb"
     if not nb.exists():
-        raise FileNotFoundError(f"stage notebook not found: {nb}")
+        raise InputError("stage notebook not found", file=nb, field="notebook")
     own = load_params(stage["params"]) if stage.get("params") else {}
     declared = notebook_parameters(nb)
     merged = {k: v for k, v in common.items() if k in declared}
@@ -50,19 +77,27 @@ def ensure_world(cfg: dict) -> Path | None:
     world = cfg.get("world_dir")
     if not world:
         return None
+    from .io.files import atomic_write_bytes
+    from .lock import folder_lock
+
     world = paths.resolve(world)
-    seed = int(cfg.get("world_seed", 0))
+    seed = cfg.get("world_seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise InputError(f"world_seed {seed!r} is not an integer", field="world_seed")
     stamp_file = world / ".generator_stamp"
     stamp = _generator_stamp(seed)
-    if (world / "legacy" / "qa.parquet").exists() and stamp_file.exists() and stamp_file.read_text() == stamp:
-        return world
-    from .synth import generate
+    # under the world's lock: a second run waits for a world being generated, then finds it ready
+    with folder_lock(world, what="mini-world folder", wait=True):
+        if (world / "world.json").is_file() and (world / "legacy" / "qa.parquet").is_file() \
+                and stamp_file.is_file() and stamp_file.read_text() == stamp:
+            return world
+        from .synth import generate
 
-    t0 = time.perf_counter()
-    print(f"resti run: generating the mini-world in {world} ...", file=sys.stderr)
-    generate(world, seed=seed)
-    stamp_file.write_text(stamp)
-    print(f"resti run: mini-world ready ({time.perf_counter() - t0:.1f}s)", file=sys.stderr)
+        t0 = time.perf_counter()
+        print(f"resti run: generating the mini-world in {world} ...", file=sys.stderr)
+        generate(world, seed=seed)
+        atomic_write_bytes(stamp_file, stamp.encode("ascii"))
+        print(f"resti run: mini-world ready ({time.perf_counter() - t0:.1f}s)", file=sys.stderr)
     return world
 
 
@@ -88,8 +123,20 @@ def stage_wave(stage: dict, common: dict) -> int:
 
 
 def run(params_file: str | Path = "params/default.yaml", *, only=None, jobs: int | None = None) -> int:
-    """Run the stages of ``params_file``; returns a process exit code."""
+    """Run the stages of ``params_file``; returns a process exit code.
+
+    The whole run holds the lock of its output folder (:func:`resti_lib.lock.run_lock`): a second
+    run on the same output folder stops at once with a :class:`~resti_lib.errors.BusyError`.
+    """
+    from .lock import run_lock
+
     cfg = load_params(params_file)
+    check_stages(cfg, params_file)
+    with run_lock(paths.resolve(cfg.get("output_dir") or "outputs")):
+        return _run(cfg, only=only, jobs=jobs)
+
+
+def _run(cfg: dict, *, only=None, jobs: int | None = None) -> int:
     stages = cfg.get("stages") or []
     common = {k: v for k, v in cfg.items() if k != "stages"}
     ensure_world(cfg)

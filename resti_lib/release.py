@@ -7,8 +7,10 @@ transform chain, verdict, evidence), ``validation.json`` (``resti verify``), ``r
 
 Invariants, checked on every run (an :class:`InvariantError` stops the run, nothing is written):
 accepted + excluded == legacy rows; every legacy key exactly once; ids unique; verify passes.
-The files are written to a temporary folder next to the target, then swapped in, so a crash
-leaves the previous release intact. No timestamps are written: reruns are byte-identical.
+The files are written by the one release writer (:class:`ReleaseStage` over
+:func:`resti_lib.publish.publishing`), also used by ``resti reoption``: a staging folder beside the
+target, swapped in when complete, so a crash leaves the previous release intact; a target that is
+not a resti output (or is an input) is refused. No timestamps are written: reruns are byte-identical.
 """
 
 from __future__ import annotations
@@ -16,27 +18,26 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
-import tempfile
 from collections import Counter
+from contextlib import contextmanager
 from pathlib import Path
 
 import pandas as pd
 
 from . import LETTERS, TASKS, __version__
+from .errors import InvariantError
 from .io.benchmark import jsonl_text, load_legacy, load_release, rows_to_parquet_bytes
+from .io.files import atomic_write_bytes, read_jsonl, sha256_bytes, write_json_bytes
+from .publish import publishing
 from .tasks.base import slug
-from .verify import sha256_file, verify_release
+from .verify import verify_release
 
-
-class InvariantError(RuntimeError):
-    """A release invariant failed (rows lost or duplicated, ids not unique, verify failing)."""
+__all__ = ["InvariantError", "ReleaseStage", "assemble", "check_invariants", "collect", "release_stage",
+           "write_release"]
 
 
 def _read_jsonl(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    return read_jsonl(path) if path.exists() else []
 
 
 def collect(tasks_dir: Path, legacy: pd.DataFrame) -> tuple[list[dict], list[dict], pd.DataFrame]:
@@ -96,39 +97,78 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
     return buf.getvalue()
 
 
-def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
+def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: str = "task") -> dict:
+    """The row counts every ``release.json`` carries (``counts``, accepted by source and by task,
+    exclusions by task, answer letters), computed once for both layouts (:func:`release_meta` and
+    :func:`resti_lib.reoption.release_meta`). ``excluded_order``: ``task`` (the order of
+    :data:`resti_lib.TASKS`) or ``name``."""
     by_task = Counter(r["Task"] for r in accepted)
     by_source = Counter(r["Source"] for r in accepted)
-    ex_task = Counter(r["task"] for r in excluded)
+    ex_task = Counter(r.get("task") for r in excluded)
     letters = Counter(r["Answer"] for r in accepted)
     order = {t: i for i, t in enumerate(TASKS)}
+    ex_items = sorted(ex_task.items(), key=lambda kv: order.get(kv[0], 99)) if excluded_order == "task" \
+        else sorted(ex_task.items())
     return {
-        "name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
         "counts": {"accepted": len(accepted), "excluded": len(excluded), "original": len(accepted) + len(excluded)},
         "accepted_by_source": dict(sorted(by_source.items())),
         "accepted_by_task": dict(sorted(by_task.items())),
-        "excluded_by_task": dict(sorted(ex_task.items(), key=lambda kv: order.get(kv[0], 99))),
-        "answer_letters": {k: letters.get(k, 0) for k in LETTERS},
-        "artifacts": artifacts,
+        "excluded_by_task": dict(ex_items),
+        "answer_letters": {k: int(letters.get(k, 0)) for k in LETTERS},
     }
 
 
-def _swap_in(tmp: Path, target: Path) -> None:
-    prev = target.with_name(f".{target.name}.prev")
-    if prev.exists():
-        shutil.rmtree(prev)
-    if target.exists():
-        os.rename(target, prev)
-    os.rename(tmp, target)
-    if prev.exists():
-        shutil.rmtree(prev)
+def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict) -> dict:
+    """The ``release.json`` object of an assembled release."""
+    return {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
+            **count_fields(accepted, excluded), "artifacts": artifacts}
 
 
-def recover(target: Path) -> None:
-    """Undo an interrupted swap: a ``.prev`` folder without its target becomes the target again."""
-    prev = target.with_name(f".{target.name}.prev")
-    if prev.exists() and not target.exists():
-        os.rename(prev, target)
+# ------------------------------------------------------------------------------ the release writer
+
+class ReleaseStage:
+    """The files of one release being written into a staging folder (see :func:`release_stage`).
+
+    Every file goes through :meth:`write`, which records its size and sha256 for ``release.json``
+    and ``SHA256SUMS`` (:meth:`seal`); :meth:`verify` writes ``validation.json``.
+    """
+
+    def __init__(self, folder: Path):
+        self.dir = Path(folder)
+        self.digests: dict[str, dict] = {}
+
+    def write(self, name: str, data: bytes) -> None:
+        atomic_write_bytes(self.dir / name, data)
+        self.digests[name] = {"bytes": len(data), "sha256": sha256_bytes(data)}
+
+    def artifacts(self, names) -> dict:
+        """``{name: {"bytes", "sha256"}}`` of files already written."""
+        return {n: dict(self.digests[n]) for n in names}
+
+    def verify(self, *, legacy_keys: list[str] | None = None) -> dict:
+        """Verify the staged release and write ``validation.json``; returns the validation object."""
+        validation = verify_release(load_release(self.dir, strict=False), legacy_keys=legacy_keys)
+        self.write("validation.json", write_json_bytes(validation))
+        return validation
+
+    def seal(self, meta: dict, covered) -> None:
+        """Write ``release.json`` (``meta``) and ``SHA256SUMS`` over ``covered`` and ``release.json``."""
+        self.write("release.json", write_json_bytes(meta))
+        names = [*covered, "release.json"]
+        self.write("SHA256SUMS", "".join(f"{self.digests[n]['sha256']}  {n}\n" for n in names).encode("utf-8"))
+
+
+def failing_checks(validation: dict) -> dict:
+    """``{check: first failing ids}`` of a validation object (for error messages)."""
+    return {k: c["failing"][:3] for k, c in validation["checks"].items() if c["status"] == "fail"}
+
+
+@contextmanager
+def release_stage(out_dir: str | os.PathLike, *, inputs=()):
+    """Write a release: yields a :class:`ReleaseStage`; published at ``out_dir`` when the block ends
+    without an error (:func:`resti_lib.publish.publishing`: ours only, locked, atomic swap)."""
+    with publishing(out_dir, kind="release", inputs=inputs, what="release folder") as stage:
+        yield ReleaseStage(stage)
 
 
 OPTION_MODES = ("population", "task")
@@ -150,47 +190,32 @@ def rebuild_options(accepted: list[dict], *, seed: int = 0, options: dict | None
 
 
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, options: str = "population", seed: int = 0) -> dict:
+                  out_dir: str | Path, *, options: str = "population", seed: int = 0, inputs=()) -> dict:
     """Write the release atomically; returns the validation object.
 
     ``options``: ``population`` rebuilds the options at release level (:func:`rebuild_options`);
-    ``task`` keeps the options the task notebooks built.
+    ``task`` keeps the options the task notebooks built. ``inputs``: paths the release is made
+    from (the release folder may not be one of them, nor hold one).
     """
     if options not in OPTION_MODES:
         raise ValueError(f"options must be one of {OPTION_MODES}, got {options!r}")
-    out_dir = Path(out_dir)
-    recover(out_dir)
-    check_invariants(legacy, accepted, excluded)
-    order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
-    accepted = sorted(accepted, key=lambda r: order[r["Legacy Row Key"]])
-    if options == "population" and accepted:
-        accepted = rebuild_options(accepted, seed=seed)
-    excluded = sorted(excluded, key=lambda r: order[r["key"]])
-    provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.tmp-"))
-    try:
-        (tmp / "resti.jsonl").write_bytes(jsonl_text(accepted).encode("utf-8"))
-        (tmp / "resti.parquet").write_bytes(rows_to_parquet_bytes(accepted))
-        (tmp / "excluded.jsonl").write_bytes(jsonl_text(excluded, sort_keys=True).encode("utf-8"))
-        (tmp / "provenance.parquet").write_bytes(_parquet_bytes(provenance.reset_index(drop=True)))
-        rel = load_release(tmp, strict=False)
-        validation = verify_release(rel, legacy_keys=list(legacy["Legacy Row Key"]))
-        (tmp / "validation.json").write_bytes((json.dumps(validation, indent=2, ensure_ascii=False) + "\n")
-                                              .encode("utf-8"))
+    with release_stage(out_dir, inputs=inputs) as st:
+        check_invariants(legacy, accepted, excluded)
+        order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
+        accepted = sorted(accepted, key=lambda r: order[r["Legacy Row Key"]])
+        if options == "population" and accepted:
+            accepted = rebuild_options(accepted, seed=seed)
+        excluded = sorted(excluded, key=lambda r: order[r["key"]])
+        provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
+        st.write("resti.jsonl", jsonl_text(accepted).encode("utf-8"))
+        st.write("resti.parquet", rows_to_parquet_bytes(accepted))
+        st.write("excluded.jsonl", jsonl_text(excluded, sort_keys=True).encode("utf-8"))
+        st.write("provenance.parquet", _parquet_bytes(provenance.reset_index(drop=True)))
+        validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]))
         if not validation["passed"]:
-            failed = {k: c["failing"][:3] for k, c in validation["checks"].items() if c["status"] == "fail"}
-            raise InvariantError(f"the assembled release fails verify: {failed}")
+            raise InvariantError(f"the assembled release fails verify: {failing_checks(validation)}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
-        artifacts = {n: {"bytes": (tmp / n).stat().st_size, "sha256": sha256_file(tmp / n)} for n in names}
-        meta = release_meta(accepted, excluded, artifacts)
-        (tmp / "release.json").write_bytes((json.dumps(meta, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
-        sums = "".join(f"{sha256_file(tmp / n)}  {n}\n" for n in names + ["release.json"])
-        (tmp / "SHA256SUMS").write_bytes(sums.encode("utf-8"))
-        _swap_in(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        st.seal(release_meta(accepted, excluded, st.artifacts(names)), names)
     return validation
 
 
@@ -199,7 +224,8 @@ def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
-    return write_release(accepted, excluded, provenance, legacy, out_dir, options=options, seed=seed)
+    return write_release(accepted, excluded, provenance, legacy, out_dir, options=options, seed=seed,
+                         inputs=[legacy_path, tasks_dir])
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

@@ -33,21 +33,21 @@ per kind and per source, e.g. ``{"box": {"Waymo": {"s": 0.2}}}``):
 - relation labels: the row's own five labels (the answer among them) in a new letter order.
 
 Letters are balanced per task and signed-value ranks per (task, source) (:func:`constrained_schedule`,
-which respects ranks a row cannot take, e.g. an exact zero is always the smallest). The output is
-written to a temporary folder next to the target and moved into place when complete: the three
-artifacts, ``release.json`` (counts, letters, bytes and sha256 of each artifact), ``SHA256SUMS`` and
-``validation.json`` (:func:`resti_lib.verify.verify_release`). A release that fails verification
-is not published.
+which respects ranks a row cannot take, e.g. an exact zero is always the smallest).
+
+The input is checked first (:func:`check_input`: counts, digests, exclusions); a damaged input is
+refused, never re-issued with fresh checksums. The output is written by the one release writer
+(:func:`resti_lib.release.release_stage`): a staging folder swapped in when complete, never over the
+input nor over a folder resti did not write. It holds the three artifacts, ``release.json`` (counts,
+letters, bytes and sha256 of each artifact), ``SHA256SUMS`` and ``validation.json``
+(:func:`resti_lib.verify.verify_release`). A release that fails verification is not published.
 """
 
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import os
-import shutil
-import tempfile
 import time
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
@@ -59,9 +59,10 @@ from scipy.spatial.transform import Rotation
 
 from . import LETTERS, SOURCES, TASKS, __version__, paths
 from . import values as V
-from .errors import InputError
+from .errors import InputError, ReoptionError
 from .figures import save_figure
-from .io.benchmark import atomic_write_bytes, jsonl_text, load_release, rows_to_parquet_bytes
+from .io.benchmark import jsonl_text, load_release, rows_to_parquet_bytes
+from .io.files import read_bytes, read_jsonl, sha256_bytes
 from .options import builders as B
 from .options.learned import LearnedConfig, attack_table_with_learned
 from .options.population import Population, field_draws, fit_model, population_options
@@ -89,10 +90,6 @@ DEFAULT_OPTIONS: dict = {
     "trajectory": {"s": 0.45, "split_sigma": 0.25, "turn_sigma_deg": 15.0, "min_rel_gap": 0.04,
                    "none_slot_ratio": 4.0},
 }
-
-
-class ReoptionError(RuntimeError):
-    """The rebuilt release could not be made or fails verification (nothing is published)."""
 
 
 def merge_options(overrides: dict | None) -> dict:
@@ -738,19 +735,15 @@ def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None
 
 # ------------------------------------------------------------------------------------ writing
 
-def _sha(b: bytes) -> str:
-    return hashlib.sha256(b).hexdigest()
-
-
 def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, source_meta: dict | None,
                  source_digests: dict, seed: int, options: dict) -> dict:
-    """The ``release.json`` object (no dates or paths, so the same input gives the same bytes)."""
-    by_task = Counter(r["Task"] for r in rows)
-    by_source = Counter(r["Source"] for r in rows)
-    exc_task = Counter(r.get("task") for r in excluded)
-    letters = Counter(r["Answer"] for r in rows)
-    by_task_letter = {t: {L: int(c) for L, c in sorted(Counter(r["Answer"] for r in rows if r["Task"] == t).items())}
-                      for t in sorted(by_task)}
+    """The ``release.json`` object (no dates or paths, so the same input gives the same bytes); the
+    row counts come from :func:`resti_lib.release.count_fields`, as in an assembled release."""
+    from .release import count_fields
+
+    c = count_fields(rows, excluded, excluded_order="name")
+    by_task_letter = {t: {L: int(n) for L, n in sorted(Counter(r["Answer"] for r in rows if r["Task"] == t).items())}
+                      for t in c["accepted_by_task"]}
     sm = source_meta or {}
     return {
         "name": sm.get("name", "ReSTI"),
@@ -761,31 +754,15 @@ def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, sou
                      "preserved": "row order and every field except Candidates and Answer; the keyed "
                                   "candidate is the Answer Detail string"},
         "artifacts": artifacts,
-        "counts": {"accepted": len(rows), "excluded": len(excluded), "original": len(rows) + len(excluded)},
-        "accepted_by_source": dict(sorted(by_source.items())),
-        "accepted_by_task": dict(sorted(by_task.items())),
+        "counts": c["counts"],
+        "accepted_by_source": c["accepted_by_source"],
+        "accepted_by_task": c["accepted_by_task"],
         "accepted_by_task_source": {f"{t}|{s}": int(n) for (t, s), n in
                                     sorted(Counter((r["Task"], r["Source"]) for r in rows).items())},
-        "excluded_by_task": dict(sorted(exc_task.items())),
-        "answer_letters": {L: int(letters.get(L, 0)) for L in LETTERS},
+        "excluded_by_task": c["excluded_by_task"],
+        "answer_letters": c["answer_letters"],
         "answer_letters_by_task": by_task_letter,
     }
-
-
-def _replace_dir(tmp: Path, out: Path) -> None:
-    """Move the finished ``tmp`` folder to ``out`` (an existing ``out`` is moved aside first)."""
-    old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}.old-{os.getpid()}-{time.monotonic_ns()}")
-        os.replace(out, old)
-    try:
-        os.replace(tmp, out)
-    except BaseException:
-        if old is not None:
-            os.replace(old, out)
-        raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 @dataclass
@@ -799,57 +776,71 @@ class ReoptionResult:
     seconds: float
 
 
+def check_input(rel) -> None:
+    """Refuse a damaged input release, naming the failing check (:class:`InputError` whose
+    ``field`` is the check).
+
+    The input must carry its integrity records and match them: ``release.json`` with row counts
+    (accepted, excluded, original) equal to the rows and exclusions present, digests
+    (``SHA256SUMS`` or the ``release.json`` artifacts) covering the files read and matching them,
+    at least one accepted row, unique ids. A release with a cut row, an emptied ``excluded.jsonl``
+    or an empty ``resti.jsonl`` is refused instead of being re-issued with fresh checksums.
+    """
+    from .verify import integrity_checks
+
+    where = rel.root
+    if rel.meta is None:
+        raise InputError("the input release has no release.json: its row counts cannot be checked, so "
+                         "damage (cut rows, lost exclusions) would go unnoticed; nothing was written",
+                         file=where, field="release_json")
+    checks = integrity_checks(rel)
+    if checks["sha256"]["status"] == "skipped":
+        raise InputError("the input release has no digests (SHA256SUMS or release.json artifacts): "
+                         "damage would go unnoticed; nothing was written", file=where, field="sha256")
+    failing = {k: c for k, c in checks.items() if c["status"] == "fail"}
+    if failing:
+        name, c = next(iter(failing.items()))
+        msgs = "; ".join(f"{k}: {v}" for k, v in list((c.get("messages") or {}).items())[:3]) \
+            or ", ".join(c["failing"][:3])
+        others = f" (also failing: {', '.join(list(failing)[1:])})" if len(failing) > 1 else ""
+        raise InputError(f"the input release is damaged; check {name!r} fails: {msgs}{others}; "
+                         "nothing was written", file=where, field=name)
+
+
 def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str | os.PathLike = "outputs/reoption",
                      *, seed: int = 0, options: dict | None = None) -> ReoptionResult:
-    """Read a release, rebuild its options, write and verify the new release, publish it atomically."""
-    from .verify import verify_release
+    """Read and check a release, rebuild its options, write and verify the new release, publish it
+    atomically (:func:`resti_lib.release.release_stage`: never over the input, nor over a folder
+    that resti did not write)."""
+    from .release import failing_checks, release_stage
 
     t0 = time.perf_counter()
     src = paths.resolve(release)
     out = paths.resolve(out_dir)
-    rel = load_release(src, strict=True)
-    if rel.accepted_file is not None and rel.accepted_file.suffix == ".jsonl":
-        # the rows exactly as written (field order and value types), not through a data frame
-        records = [json.loads(line) for line in rel.accepted_file.read_text(encoding="utf-8").splitlines()
-                   if line.strip()]
-    else:
-        records = rel.accepted.to_dict("records")
-    opts = merge_options(options)
-    rows, ev = reoption_records(records, seed=seed, options=opts)
-    exc_bytes = rel.excluded_file.read_bytes() if rel.excluded_file is not None else b""
-    data = {
-        "resti.jsonl": jsonl_text(rows).encode("utf-8"),
-        "resti.parquet": rows_to_parquet_bytes(rows),
-        "excluded.jsonl": exc_bytes,
-    }
-    artifacts = {n: {"bytes": len(b), "sha256": _sha(b)} for n, b in data.items()}
-    src_digests = {}
-    for f in (rel.accepted_file, rel.excluded_file):
-        if f is not None:
-            src_digests[f.name] = {"bytes": f.stat().st_size, "sha256": _sha(f.read_bytes())}
-    meta = release_meta(rows, rel.excluded, artifacts, source_meta=rel.meta, source_digests=src_digests,
-                        seed=seed, options=opts)
-    data["release.json"] = (json.dumps(meta, indent=2, ensure_ascii=False) + "\n").encode("utf-8")
-    sums = "".join(f"{_sha(data[n])}  {n}\n" for n in (*ARTIFACTS, "release.json"))
-    data["SHA256SUMS"] = sums.encode("utf-8")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.tmp-"))
-    try:
-        for name, b in data.items():
-            atomic_write_bytes(tmp / name, b)
-        validation = verify_release(load_release(tmp, strict=False))
-        atomic_write_bytes(tmp / "validation.json",
-                           (json.dumps(validation, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
+    with release_stage(out, inputs=[src]) as st:
+        rel = load_release(src, strict=True)
+        check_input(rel)
+        if rel.accepted_file is not None and rel.accepted_file.suffix == ".jsonl":
+            # the rows exactly as written (field order and value types), not through a data frame
+            records = read_jsonl(rel.accepted_file)
+        else:
+            records = rel.accepted.to_dict("records")
+        opts = merge_options(options)
+        rows, ev = reoption_records(records, seed=seed, options=opts)
+        st.write("resti.jsonl", jsonl_text(rows).encode("utf-8"))
+        st.write("resti.parquet", rows_to_parquet_bytes(rows))
+        st.write("excluded.jsonl", read_bytes(rel.excluded_file) if rel.excluded_file is not None else b"")
+        src_digests = {}
+        for f in (rel.accepted_file, rel.excluded_file):
+            if f is not None:
+                b = read_bytes(f)
+                src_digests[f.name] = {"bytes": len(b), "sha256": sha256_bytes(b)}
+        meta = release_meta(rows, rel.excluded, st.artifacts(ARTIFACTS), source_meta=rel.meta,
+                            source_digests=src_digests, seed=seed, options=opts)
+        st.seal(meta, ARTIFACTS)
+        validation = st.verify()
         if not validation["passed"]:
-            failing = {k: c["failing"][:3] for k, c in validation["checks"].items() if c["status"] == "fail"}
-            raise ReoptionError(f"the rebuilt release fails verification: {failing}")
-        for f in tmp.iterdir():
-            os.chmod(f, 0o644)
-        os.chmod(tmp, 0o755)
-        _replace_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            raise ReoptionError(f"the rebuilt release fails verification: {failing_checks(validation)}")
     return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0)
 
 

@@ -55,6 +55,31 @@ _UNITS: dict[str, tuple[str, float, str]] = {
     "": ("", 1.0, "number"),
 }
 
+
+
+def canonical_unit(unit: str) -> str | None:
+    """The canonical spelling of a unit text (``"deg"`` -> ``"°"``, ``"m/s^2"`` -> ``"m/s²"``), or None."""
+    u = str(unit).strip()
+    hit = _UNITS.get(u, _UNITS.get(u.lower()))
+    return hit[0] if hit else None
+
+
+def si_factor(unit: str) -> float:
+    """SI value of one ``unit`` (``cm`` -> 0.01); the one unit table of the package."""
+    u = canonical_unit(unit)
+    if u is None:
+        raise InputError(f"unknown unit {unit!r}", field="unit")
+    return _UNITS[u][1]
+
+
+def unit_dimension(unit: str) -> str:
+    """``length``, ``speed``, ``acceleration``, ``angle``, ``time`` or ``number``."""
+    u = canonical_unit(unit)
+    if u is None:
+        raise InputError(f"unknown unit {unit!r}", field="unit")
+    return _UNITS[u][2]
+
+
 _NUM = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?|[-+]?(?:nan|inf|infinity)"
 _SCALAR_RE = re.compile(
     rf"^\s*(?P<num>{_NUM})\s*(?P<unit>m/s²|m/s\^2|m/s2|m/s|km/h|cm|mm|km|m|meters?|metres?|°|"
@@ -239,6 +264,10 @@ def _parse_json(text: str, where: dict) -> Value:
         obj = json.loads(text)
     except json.JSONDecodeError as e:
         raise _err(f"malformed JSON value ({e.msg} at char {e.pos}): {text[:80]!r}", where) from None
+    except RecursionError:
+        raise _err(f"JSON value nested too deeply: {text[:40]!r}...", where) from None
+    except ValueError as e:  # e.g. an integer literal longer than Python converts
+        raise _err(f"malformed JSON value ({e}): {text[:40]!r}", where) from None
     if not isinstance(obj, dict):
         raise _err(f"JSON value is not an object: {text[:80]!r}", where)
     dec = max((_decimals(m) for m in re.findall(r"-?\d+\.\d+", text)), default=0)
@@ -248,7 +277,7 @@ def _parse_json(text: str, where: dict) -> Value:
             raise _err(f"pose JSON lacks keys {missing}", where)
         try:
             vals = [float(obj[k]) for k in POSE_KEYS]
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise _err("pose JSON has a non-numeric entry", where) from None
         R = (tuple(vals[3:6]), tuple(vals[6:9]), tuple(vals[9:12]))
         return Pose(t=tuple(vals[:3]), R=R, text=text, decimals=dec, compact='", "' not in text
@@ -261,7 +290,7 @@ def _parse_json(text: str, where: dict) -> Value:
             R = tuple(tuple(float(x) for x in r) for r in R) if R is not None else None
             h = obj.get("C_heading")
             h = float(h) if h is not None else None
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise _err(f"grounding JSON malformed ({e!r})", where) from None
         if len(c) != 3 or len(lwh) != 3 or (R is not None and (len(R) != 3 or any(len(r) != 3 for r in R))):
             raise _err("grounding JSON has wrong shapes (centre 3, lwh 3, rotation 3x3)", where)
@@ -303,8 +332,11 @@ def parse(text: object, *, file=None, row=None, field=None) -> Value:
     if text is None or (isinstance(text, float) and math.isnan(text)):
         raise _err("value is missing (null)", where)
     if not isinstance(text, str):
-        if isinstance(text, (int, float)):
-            return Scalar(value=float(text), unit="", text=str(text), decimals=_decimals(str(text)))
+        if isinstance(text, (int, float)) and not isinstance(text, bool):
+            try:
+                return Scalar(value=float(text), unit="", text=str(text), decimals=_decimals(str(text)))
+            except (OverflowError, ValueError):
+                raise _err(f"number {str(text)[:40]} is out of range", where) from None
         raise _err(f"value is a {type(text).__name__}, expected a string", where)
     s = text.strip()
     if not s:
@@ -459,13 +491,9 @@ def number_tokens(text: str) -> list[str]:
     return _TOKEN_RE.findall(str(text))
 
 
-def is_numeric(v: Value) -> bool:
-    return isinstance(v, (Scalar, Pose, Box))
-
-
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
     "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
     "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "NO_MOVEMENT", "RELATION_LABELS",
-    "number_tokens",
+    "canonical_unit", "si_factor", "unit_dimension", "number_tokens",
 ]

@@ -32,6 +32,12 @@ def real_vehicle_pose() -> Path:
 
 
 @pytest.fixture(scope="session")
+def real_samples() -> Path:
+    """Small real source files (ScanNet scene0000_00, a ROPE frame, Waymo camera_hkp), byte-exact."""
+    return _require(paths.shared_dir() / "data" / "real_samples", "real source samples")
+
+
+@pytest.fixture(scope="session")
 def miniworld(tmp_path_factory) -> Path:
     """The default mini-world (seed 0), generated once per session into a temporary folder."""
     from resti_lib.synth import generate

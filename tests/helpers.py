@@ -42,3 +42,21 @@ def write_release(rows, excluded, folder: Path) -> Path:
                                         encoding="utf-8")
     (folder / "excluded.jsonl").write_text("".join(json.dumps(e) + "\n" for e in excluded), encoding="utf-8")
     return folder
+
+
+def seal_release(folder: Path) -> Path:
+    """Add the integrity records a published release carries: ``release.json`` with the row counts
+    (counted here from the files) and ``SHA256SUMS`` of the two row files."""
+    import hashlib
+
+    def n_rows(name):
+        p = folder / name
+        return sum(1 for line in p.read_text(encoding="utf-8").splitlines() if line.strip()) if p.exists() else 0
+
+    acc, exc = n_rows("resti.jsonl"), n_rows("excluded.jsonl")
+    (folder / "release.json").write_text(json.dumps({"name": "test release", "version": "t1", "counts": {
+        "accepted": acc, "excluded": exc, "original": acc + exc}}, indent=2) + "\n", encoding="utf-8")
+    sums = "".join(f"{hashlib.sha256((folder / n).read_bytes()).hexdigest()}  {n}\n"
+                   for n in ("resti.jsonl", "excluded.jsonl") if (folder / n).exists())
+    (folder / "SHA256SUMS").write_text(sums, encoding="utf-8")
+    return folder

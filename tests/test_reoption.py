@@ -25,7 +25,7 @@ from resti_lib.options.attacks import attack_table, binom_p, parse_rows
 from resti_lib.options.learned import LearnedConfig, attack_table_with_learned, learned_picks
 from resti_lib.options.population import field_draws, fit_model
 from resti_lib.verify import verify_path
-from tests.helpers import row, write_release
+from tests.helpers import row, seal_release, write_release
 
 FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "release.json", "SHA256SUMS", "validation.json")
 
@@ -99,9 +99,11 @@ def _tiny_rows(seed: int = 0) -> list[dict]:
 
 @pytest.fixture
 def tiny_release(tmp_path) -> Path:
-    return write_release(_tiny_rows(), [{"key": "x|y|z|0|uid=0", "legacy_id": 0, "legacy_video": "v.mp4",
-                                         "source": "ScanNet", "task": "Spatial Relation",
-                                         "reason_codes": ["unsupported_question"]}], tmp_path / "in")
+    key = "ScanNet|Spatial Relation|v.mp4|0|uid=00000000000000aa"
+    return seal_release(write_release(_tiny_rows(), [{"key": key, "legacy_id": 0, "legacy_video": "v.mp4",
+                                                      "source": "ScanNet", "task": "Spatial Relation",
+                                                      "reason_codes": ["unsupported_question"]}],
+                                      tmp_path / "in"))
 
 
 # ------------------------------------------------------------------------------ without shared data
@@ -160,11 +162,11 @@ def test_cli_reoption(tiny_release, tmp_path, capsys):
 
 def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "marker").write_text("old release")
-    from resti_lib import verify
+    RO.reoption_release(tiny_release, out, seed=5)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    from resti_lib import release as release_writer
 
-    real = verify.verify_release
+    real = release_writer.verify_release
 
     def failing(rel, **kw):
         v = real(rel, **kw)
@@ -172,10 +174,10 @@ def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypat
         v["checks"]["distinct_strings"] = {"status": "fail", "n_failing": 1, "failing": ["x"]}
         return v
 
-    monkeypatch.setattr(verify, "verify_release", failing)
+    monkeypatch.setattr(release_writer, "verify_release", failing)
     with pytest.raises(RO.ReoptionError, match="fails verification"):
         RO.reoption_release(tiny_release, out, seed=0)
-    assert (out / "marker").read_text() == "old release"
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.tmp")]
 
 

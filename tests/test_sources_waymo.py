@@ -28,7 +28,14 @@ def rz4(deg, t):
     return np.array([[c, -s, 0, t[0]], [s, c, 0, t[1]], [0, 0, 1, t[2]], [0, 0, 0, 1.0]])
 
 
-def write_segment(root, n=5, drop=None):
+def camera_col(numbers, as_text=False):
+    """``key.camera_name``: the CameraName enum as int8, or its names as text (the official camera_hkp)."""
+    if as_text:
+        return pa.array([W.CAMERA_NAMES[c] for c in numbers], pa.string())
+    return pa.array(numbers, pa.int8())
+
+
+def write_segment(root, n=5, drop=None, camera_names_as_text=False):
     """Vehicle parked at world (10, 20, 0) facing world +Y (yaw 90 deg); a FRONT camera 1.5 m ahead
     and 2 m up; one object (id "obj-a") 5 m ahead moving forward at 10 m/s; frames every 0.1 s."""
     micros = T0 + np.arange(n) * 100_000
@@ -41,7 +48,7 @@ def write_segment(root, n=5, drop=None):
 
     E = np.eye(4)
     E[:3, 3] = [1.5, 0.0, 2.0]
-    cal = {W.KEY_SEGMENT: [SEG, SEG], W.KEY_CAMERA: pa.array([1, 2], pa.int8()),
+    cal = {W.KEY_SEGMENT: [SEG, SEG], W.KEY_CAMERA: camera_col([1, 2], camera_names_as_text),
            W.CAL_EXTRINSIC: transform_col([E, rz4(45, (1.0, 0.5, 2.0))]),
            W.CAL_WIDTH: pa.array([1920, 1920], pa.int32()), W.CAL_HEIGHT: pa.array([1280, 1280], pa.int32())}
     for k, c in W.CAL_INTRINSIC.items():
@@ -49,7 +56,7 @@ def write_segment(root, n=5, drop=None):
     (root / "camera_calibration").mkdir(exist_ok=True)
     pq.write_table(pa.table(cal), root / "camera_calibration" / f"{SEG}.parquet")
 
-    img = {W.KEY_SEGMENT: [SEG] * n, W.KEY_MICROS: micros, W.KEY_CAMERA: pa.array([1] * n, pa.int8()),
+    img = {W.KEY_SEGMENT: [SEG] * n, W.KEY_MICROS: micros, W.KEY_CAMERA: camera_col([1] * n, camera_names_as_text),
            "[CameraImageComponent].image": pa.array([b"\xff\xd8jpeg"] * n, pa.binary()),
            W.IMG_POSE: transform_col(Wv), W.IMG_POSE_TIMESTAMP: (micros + 20_000) / 1e6}
     (root / "camera_image").mkdir(exist_ok=True)
@@ -83,6 +90,51 @@ def test_camera_names():
     assert e.value.field == "camera"
     with pytest.raises(InputError):
         W.camera_number(7)
+
+
+def test_camera_names_as_text_in_every_component(tmp_path):
+    as_int = W.WaymoSegment(write_segment(tmp_path / "int"), SEG)
+    as_text = W.WaymoSegment(write_segment(tmp_path / "text", camera_names_as_text=True), SEG)
+    assert pq.read_schema(as_text.path("camera_calibration")).field(W.KEY_CAMERA).type == pa.string()
+    assert sorted(as_text.calibration) == [1, 2]
+    np.testing.assert_allclose(as_text.camera_calibration("FRONT_LEFT")["extrinsic"], rz4(45, (1.0, 0.5, 2.0)))
+    for poses in ("vehicle_pose", "camera_image"):
+        a, b = as_int.camera_track("FRONT", poses=poses), as_text.camera_track(1, poses=poses)
+        assert len(b) == 5
+        np.testing.assert_allclose(b.T, a.T)
+        np.testing.assert_allclose(b.times, a.times)
+    np.testing.assert_array_equal(W.read_camera_numbers(as_text.path("camera_image")), [1] * 5)
+
+
+@pytest.mark.parametrize("component, values, problem", [
+    ("camera_calibration", pa.array(["FRONT", "REAR"]), "'REAR' is not a camera"),
+    ("camera_calibration", pa.array([1, 7], pa.int8()), "7 is not a camera"),
+    ("camera_image", pa.array(["FRONT", None, "FRONT", "FRONT", "FRONT"]), "missing"),
+    ("camera_image", pa.array([1.0] * 5), "type double"),
+])
+def test_bad_camera_name_names_file_row_and_column(tmp_path, component, values, problem):
+    root = write_segment(tmp_path / "waymo")
+    path = root / component / f"{SEG}.parquet"
+    t = pq.read_table(path)
+    pq.write_table(t.set_column(t.schema.get_field_index(W.KEY_CAMERA), W.KEY_CAMERA, values), path)
+    seg = W.WaymoSegment(root, SEG)
+    with pytest.raises(InputError) as e:
+        seg.camera_track(1, poses="camera_image" if component == "camera_image" else "vehicle_pose")
+    assert e.value.file == str(path) and e.value.field == W.KEY_CAMERA and problem in e.value.message
+    if problem != "type double":
+        assert e.value.row == 1
+
+
+def test_real_camera_hkp_camera_names(real_samples):
+    """The official camera_hkp test file stores key.camera_name as text: read as CameraName numbers."""
+    path = real_samples / "waymo" / "camera_hkp" / "10023947602400723454_1120_000_1140_000.parquet"
+    stored = pq.read_table(path, columns=[W.KEY_CAMERA]).column(0)
+    assert pa.types.is_string(stored.type)
+    nums = W.read_camera_numbers(path, "10023947602400723454_1120_000_1140_000")
+    by_hand = {"FRONT": 1, "FRONT_LEFT": 2, "FRONT_RIGHT": 3, "SIDE_LEFT": 4, "SIDE_RIGHT": 5}
+    assert len(nums) == 15_844
+    np.testing.assert_array_equal(nums, [by_hand[x] for x in stored.to_pylist()])
+    assert {W.CAMERA_NAMES[int(c)] for c in nums} == set(by_hand)
 
 
 def test_vehicle_pose_and_time(seg_root):
@@ -181,7 +233,7 @@ def test_vehicle_pose_errors_name_the_file_row_among_other_segments(tmp_path):
 
 def test_snapshot_far_from_box_frames_excludes_but_damaged_boxes_stop(tmp_path):
     from resti_lib.errors import ContractError
-    from resti_lib.tasks.referents import SceneView
+    from resti_lib.referents import SceneView
 
     root = write_segment(tmp_path / "w")  # box frames at 0.0 .. 0.4 s
     view = SceneView("Waymo", W.WaymoSegment(root, SEG), 1)

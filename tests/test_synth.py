@@ -92,7 +92,7 @@ def test_cli_parses_arguments(monkeypatch, tmp_path, capsys):
         "out_dir": str(tmp_path),
         "seed": 7,
         "scale": 2,
-        "omni6d_camera_convention": "world_from_camera",
+        "omni6d_camera_convention": "identity",
     }
     assert json.loads(capsys.readouterr().out)["seed"] == 7
 
@@ -242,8 +242,22 @@ def _instances(d: Path) -> tuple[np.ndarray, dict[int, dict]]:
     out = {}
     for g in agg["segGroups"]:
         m = np.isin(seg, g["segments"])
-        out[g["objectId"]] = {"label": g["label"], "min": ann[m].min(0), "max": ann[m].max(0)}
+        out[g["objectId"]] = {"label": g["label"], "min": ann[m].min(0), "max": ann[m].max(0),
+                              "rect": _rectangle(ann[m])}
     return A, out
+
+
+def _rectangle(v: np.ndarray) -> dict:
+    """A box instance's footprint read as the rectangle of its four corners (by hand): side lengths
+    (length = the longer), the unit direction of the longer side, the centre; z range."""
+    xy = np.unique(v[:, :2], axis=0)
+    assert len(xy) == 4  # top and bottom corners share their XY exactly
+    mid = xy.mean(axis=0)
+    xy = xy[np.argsort(np.arctan2(xy[:, 1] - mid[1], xy[:, 0] - mid[0]))]
+    a, b = xy[1] - xy[0], xy[2] - xy[1]
+    long_, short = (a, b) if np.linalg.norm(a) >= np.linalg.norm(b) else (b, a)
+    return {"lwh": np.array([np.linalg.norm(long_), np.linalg.norm(short), np.ptp(v[:, 2])]),
+            "x": long_ / np.linalg.norm(long_), "center": np.append(mid, (v[:, 2].min() + v[:, 2].max()) / 2)}
 
 
 def test_scannet_mesh_and_instances(world, info):
@@ -258,6 +272,11 @@ def test_scannet_mesh_and_instances(world, info):
             assert got["label"] == t["label"]
             assert np.allclose(got["min"], t["ann_min"], atol=1e-5)
             assert np.allclose(got["max"], t["ann_max"], atol=1e-5)
+            assert np.allclose(got["rect"]["lwh"], t["box_lwh"], atol=1e-5)
+            yaw = math.degrees(math.atan2(got["rect"]["x"][1], got["rect"]["x"][0]))
+            assert abs((yaw - t["box_yaw_deg"] + 90) % 180 - 90) < 1e-3  # the long side's direction
+    turned = [t for sc in info["sequences"]["scannet"] for t in sc["instances"] if t["turn_deg"]]
+    assert len(turned) >= 3 and all(15 <= abs(t["turn_deg"]) <= 35 for t in turned)
 
 
 # ==================================================================================== Waymo
@@ -381,20 +400,45 @@ def test_omni6d_meta_loads_with_cutoop(world, info):
                 assert o.translation[2] > 0  # positive depth (OpenCV axes)
 
 
-def test_omni6d_camera_convention_is_consistent(world, info):
-    """world_T_obj == world_T_cam @ cam_T_obj under the recorded convention (and not the other)."""
-    from cutoop.image_meta import ImageMetaData
+def _rope_poses(path: Path) -> tuple[dict, dict]:
+    """One frame meta read as JSON: oid -> T_cam<-object (4x4, from the wxyz quaternion) and the raw JSON."""
+    m = json.loads(path.read_text())
+    out = {}
+    for o in m["objects"].values():
+        w, x, y, z = o["quaternion_wxyz"]
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, o["translation"]
+        out[o["meta"]["oid"]] = T
+    return out, m
 
-    conv = info["conventions"]["omni6d_camera_pose"]
-    scene = info["sequences"]["omni6d"][0]
-    m = ImageMetaData.load_json(str(world[0] / "omni6d" / "ROPE" / scene["scene"] / "000123_meta.json"))
-    Tc = m.camera.to_affine().astype(np.float64)
-    T_wc = Tc if conv == "world_from_camera" else np.linalg.inv(Tc)
-    for o in m.objects:
-        T_co = o.pose().to_affine().astype(np.float64)
-        w = T_wc @ T_co
-        assert np.allclose(w[:3, 3], o.world_translation, atol=1e-5)
-        assert not np.allclose((np.linalg.inv(T_wc) @ T_co)[:3, 3], o.world_translation, atol=1e-3)
+
+def test_omni6d_frames_written_the_real_way(world, info):
+    """As real ROPE frames: identity camera pose, zero world translations, object poses in the OpenCV
+    camera in front of it; static objects keep their relative poses (those of world.json), the
+    re-placed object does not."""
+    assert info["conventions"]["omni6d_camera_pose"] == "identity"
+    moving = [sc for sc in info["sequences"]["omni6d"] if sc["moving_object"]]
+    assert len(moving) == 1 and moving[0]["moving_object"]["displacement_m"] > 0.1
+    for scene in info["sequences"]["omni6d"]:
+        d = world[0] / "omni6d" / "ROPE" / scene["scene"]
+        world_T = {o["oid"]: np.array(o["T_world_from_object"]) for o in scene["objects"]}
+        mover = (scene["moving_object"] or {}).get("oid")
+        for k in (0, scene["n_frames"] // 2, scene["n_frames"] - 1):
+            poses, m = _rope_poses(d / f"{k:06d}_meta.json")
+            assert m["camera"]["quaternion"] == [1.0, 0.0, 0.0, 0.0] and m["camera"]["translation"] == [0.0, 0.0, 0.0]
+            for o in m["objects"].values():
+                assert o["world_translation"] == [0.0, 0.0, 0.0] and o["translation"][2] > 0
+            static = sorted(x for x in poses if x != mover)
+            a = static[0]
+            for b in static[1:]:
+                rel = np.linalg.inv(poses[a]) @ poses[b]
+                assert np.allclose(rel, np.linalg.inv(world_T[a]) @ world_T[b], atol=1e-6)
+            if mover in poses and k > scene["moving_object"]["frames"][1]:
+                rel = np.linalg.inv(poses[a]) @ poses[mover]
+                assert not np.allclose(rel[:3, 3], (np.linalg.inv(world_T[a]) @ world_T[mover])[:3, 3], atol=0.05)
 
 
 def test_omni6d_other_camera_convention(tmp_path):
@@ -605,6 +649,12 @@ def test_scannet_grounding_alignment_by_hand(world, legacy, manifest):
         true_c = np.linalg.inv(P) @ np.linalg.inv(A) @ np.append(c_ann, 1)
         assert np.allclose(m["true_value"]["C_central_point"], true_c[:3], atol=1e-4)
         assert true_c[2] > 0.3  # the target is in front of the camera
+        # the true box is the tight one: its lwh and the direction of its x axis (either sign)
+        rect = box["rect"]
+        assert np.allclose(m["true_value"]["C_lwh"], rect["lwh"], atol=1e-5)
+        x_cam = np.linalg.inv(P)[:3, :3] @ np.linalg.inv(A)[:3, :3] @ np.append(rect["x"], 0.0)
+        R = np.array(m["true_value"]["C_rotation_camera_from_box"])
+        assert abs(abs(R[:, 0] @ x_cam) - 1) < 1e-5
         n += 1
     assert n >= 10
 
@@ -668,21 +718,24 @@ def test_motion_truth_by_hand(world, manifest, info):
 
 
 def test_omni_pose_truth_by_hand(world, manifest, info):
-    from cutoop.image_meta import ImageMetaData
-
-    conv = info["conventions"]["omni6d_camera_pose"]
+    """The camera pose relative to frame 0 from one static object seen in both frames:
+    ``T_c0<-ck = T_c0<-obj T_ck<-obj^-1`` (the frames store no camera motion)."""
+    movers = {sc["scene"]: (sc["moving_object"] or {}).get("oid") for sc in info["sequences"]["omni6d"]}
+    n = 0
     for m in manifest:
         if m["task"] != "Pose Estimation" or m["source"] != "Omni6DPose":
             continue
         d = world[0] / "omni6d" / "ROPE" / m["sequence"]
-
-        def T_wc(k, d=d):
-            Tc = ImageMetaData.load_json(str(d / f"{k:06d}_meta.json")).camera.to_affine().astype(np.float64)
-            return Tc if conv == "world_from_camera" else np.linalg.inv(Tc)
-
         k1 = int(round(m["contract"]["times"][0] * 30))
-        rel = np.linalg.inv(T_wc(0)) @ T_wc(k1)
+        p0, _ = _rope_poses(d / "000000_meta.json")
+        p1, _ = _rope_poses(d / f"{k1:06d}_meta.json")
+        oid = min(set(p0) & set(p1) - {movers[m["sequence"]]})
+        rel = p0[oid] @ np.linalg.inv(p1[oid])
         assert np.allclose([m["true_value"][x] for x in ("tx", "ty", "tz")], rel[:3, 3], atol=1e-5)
+        R = np.array([[m["true_value"][f"r{i}{j}"] for j in (1, 2, 3)] for i in (1, 2, 3)])
+        assert np.allclose(R, rel[:3, :3], atol=1e-5)
+        n += 1
+    assert n >= 5
 
 
 # ===================================================================================== scale
@@ -779,17 +832,28 @@ def test_object_truth_by_hand(world, manifest):
                 assert abs(m["true_value"] - size["xyz".index(m["contract"]["box_axis"])]) < 1e-9
             seen[(m["source"], op)] += 1
         elif m["source"] == "ScanNet" and op in ("dimension", "distance_to_camera"):
+            # truth: the tight upright box (its footprint rectangle); legacy: the ann-frame AABB
             d = out / "scannet" / "scans" / m["sequence"]
             A, inst = _instances(d)
             box = inst[ent["id"]]
+            rect = box["rect"]
             if op == "dimension":
-                want = (box["max"] - box["min"])["xyz".index(m["contract"]["box_axis"])]
+                k = "xyz".index(m["contract"]["box_axis"])
+                want, legacy = rect["lwh"][k], (box["max"] - box["min"])[k]
             else:
                 f = int(round(times[0] * 30))
                 P = np.loadtxt(d / "pose" / f"{f}.txt")
                 c = A[:3, :3] @ P[:3, 3] + A[:3, 3]
-                want = np.linalg.norm(np.maximum(0, np.maximum(box["min"] - c, c - box["max"])))
+                ex = np.append(rect["x"], 0.0)
+                local = np.array([ex, np.cross([0.0, 0.0, 1.0], ex), [0.0, 0.0, 1.0]]) @ (c - rect["center"])
+                want = np.linalg.norm(np.maximum(0, np.abs(local) - rect["lwh"] / 2))
+                legacy = np.linalg.norm(np.maximum(0, np.maximum(box["min"] - c, c - box["max"])))
             assert abs(m["true_value"] - want) < 2e-5
+            if "value_mismatch" not in m["defects"]:
+                assert abs(m["legacy_value"] - legacy) < 2e-5
+                turned = abs(want - legacy) > 1e-4
+                assert (m["expected_verdict"] == "re-contracted") == turned
+                assert bool(m.get("evidence", {}).get("legacy_box")) == turned
             seen[(m["source"], op)] += 1
         elif m["source"] == "Omni6DPose" and op == "box_in_camera":
             k = int(round(times[0] * 30))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from resti_lib import measure as M
+from resti_lib import referents as R
 from resti_lib.sources.scannet import OrientedBox
-from resti_lib.tasks import referents as R
 from tests import scalar_helpers as H
 from tests.test_sources_omni6d import SCENE as ROPE_SCENE
 from tests.test_sources_omni6d import write_rope
@@ -103,10 +103,10 @@ def test_waymo_noun_classes():
 
 def test_unsupported_questions_get_specific_reasons():
     from resti_lib.tasks.base import Outcome
-    from resti_lib.tasks.dimensional import _unsupported
+    from resti_lib.tasks.dimensional import unsupported
 
     def reasons(q):
-        o = _unsupported(Outcome(0, "k", TASK, "ScanNet", "v", 0, "retained"), {"Question": q})
+        o = unsupported(q).apply(Outcome(0, "k", TASK, "ScanNet", "v", 0, "retained"))
         return o.reasons, o.defects
 
     assert reasons("What is the diameter of the white bowl?") == (["undefined_dimension"], [])
@@ -176,6 +176,40 @@ def test_scene_view_world_box_pair(roots):
     assert R.box_box_distance(a.box, far.box)[0] == pytest.approx(3.0)  # [0,2] to [5,6] along x
 
 
+def _row(tight, axis_aligned, verdict="corrected"):
+    from types import SimpleNamespace
+
+    return (SimpleNamespace(verdict=verdict, defects=["value_mismatch"] if verdict == "corrected" else [],
+                            evidence={"box_hypotheses": {"tight": 1.0, "axis_aligned": 1.2}}),
+            {"tight": tight, "axis_aligned": axis_aligned})
+
+
+def test_box_convention_majority_and_chance_agreement():
+    from resti_lib.tasks import dimensional as D
+
+    # three rows agree only with the axis-aligned box, one only with the tight box: axis-aligned rules
+    rows = [_row(False, True), _row(False, True), _row(False, True), _row(True, False, "retained"),
+            _row(True, True, "retained"), _row(False, False)]
+    D._adjudicate_boxes(rows, {"mixed_share": 0.5})
+    g = rows[0][0].evidence["box_convention"]
+    assert (g["convention"], g["n_axis_aligned_only"], g["n_tight_only"], g["n_both"], g["n_neither"]) == \
+        ("axis_aligned", 3, 1, 1, 1)
+    assert [o.verdict for o, _ in rows] == ["re-contracted"] * 3 + ["retained", "retained", "corrected"]
+    assert rows[0][0].defects == [] and rows[5][0].defects == ["value_mismatch"]
+    # the other way round: a lone axis-aligned match in a tight-box task is a chance agreement ...
+    rows = [_row(True, False, "retained") for _ in range(4)] + [_row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[4][0].verdict == "corrected" and "chance agreement" in rows[4][0].evidence["coincidence"]
+    # ... unless the task is mixed (the minority has a quarter of the discriminating rows at least)
+    rows = [_row(True, False, "retained") for _ in range(3)] + [_row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[3][0].evidence["box_convention"]["mixed"] and rows[3][0].verdict == "re-contracted"
+    # no majority: each row keeps its own match
+    rows = [_row(True, False, "retained"), _row(False, True)]
+    D._adjudicate_boxes(rows, {})
+    assert rows[0][0].evidence["box_convention"]["convention"] is None and rows[1][0].verdict == "re-contracted"
+
+
 # ----------------------------------------------------------------------------- the mini-world
 
 
@@ -189,23 +223,6 @@ def man(miniworld):
     return H.manifest(miniworld)
 
 
-def _convention_rows(run, man) -> set[int]:
-    """ScanNet length/width rows where the mini-world's truth is the annotation-frame axis extent.
-
-    The generator reads "length" as the x extent of the annotation-frame box; the audit (ReSTI v5
-    wording) reads it as the larger horizontal extent of the upright box. Where the two differ the
-    audit re-contracts with the legacy convention in the evidence (asserted below).
-    """
-    out = set()
-    for o in run.outcomes:
-        if "legacy_convention" in o.evidence:
-            k = 0 if o.contract["params"]["dimension"] == "length" else 1
-            assert man[o.row]["true_value"] == pytest.approx(o.evidence["aabb_ann_m"][k], abs=1e-6)
-            assert o.verdict == "re-contracted" and man[o.row]["expected_verdict"] == "retained"
-            out.add(o.row)
-    return out
-
-
 def test_miniworld_defects_recall_and_precision(dim_run, man, miniworld):
     amb = H.source_ambiguous_rows(dim_run, man, miniworld)
     assert amb == set()  # the generator's Waymo referents are unique in view (tests/test_synth.py)
@@ -213,11 +230,32 @@ def test_miniworld_defects_recall_and_precision(dim_run, man, miniworld):
 
 
 def test_miniworld_verdicts_and_values(dim_run, man, miniworld):
-    conv = _convention_rows(dim_run, man)
-    assert len(conv) <= 3 and H.source_ambiguous_rows(dim_run, man, miniworld) == set()
-    assert [m for m in H.verdict_mismatches(dim_run, man) if m[0] not in conv] == []
-    assert [m for m in H.value_mismatches(dim_run, man) if m[0] not in conv] == []
+    assert H.source_ambiguous_rows(dim_run, man, miniworld) == set()
+    assert H.verdict_mismatches(dim_run, man) == []
+    assert H.value_mismatches(dim_run, man) == []
     assert {o.source for o in dim_run.outcomes} == {"ScanNet", "Waymo", "Omni6DPose"}
+
+
+def test_miniworld_box_convention_diagnosed(dim_run, man):
+    """The mini-world's legacy ScanNet values use the annotation-frame axis-aligned box (manifest
+    evidence ``legacy_box``); the task diagnoses that convention from the rows and re-contracts the
+    rows that agree only under it, each with both values in its evidence."""
+    scannet = [o for o in dim_run.outcomes if o.source == "ScanNet" and "box_convention" in o.evidence]
+    assert scannet
+    conv = scannet[0].evidence["box_convention"]
+    assert all(o.evidence["box_convention"] == conv for o in scannet)
+    assert conv["convention"] == "axis_aligned" and conv["n_tight_only"] == 0
+    built = {m["row"] for m in man if m["task"] == "Dimensional Measurement"
+             and m.get("evidence", {}).get("legacy_box") and m["expected_verdict"] == "re-contracted"}
+    assert built and conv["n_axis_aligned_only"] == len(built)
+    for o in dim_run.outcomes:
+        if o.row in built:
+            hyp = o.evidence["box_hypotheses"]
+            assert o.verdict == "re-contracted" and "legacy_convention" in o.evidence
+            # 0.1 mm: the raw-frame boxes go through the rigid inverse of the 6-decimal axisAlignment
+            assert hyp["axis_aligned"] == pytest.approx(man[o.row]["evidence"]["axis_aligned_value_m"], abs=1e-4)
+            assert hyp["tight"] == pytest.approx(man[o.row]["true_value"], abs=1e-4)
+            assert abs(hyp["axis_aligned"] - hyp["tight"]) > 0.03
 
 
 def test_miniworld_exclusions_carry_reasons_and_evidence(dim_run):

@@ -6,6 +6,7 @@ import json
 
 import pytest
 
+from resti_lib import values as V
 from resti_lib.adjudicate import Rule
 from resti_lib.tasks import displacement as D
 from resti_lib.tasks.run import run_task
@@ -94,17 +95,19 @@ def test_ambiguous_subject_and_no_source(hand):
 
 def test_tie_break_by_legacy_value():
     rule = Rule(abs_tol=0.0, rel_tol=0.0)
-    k, ev = tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=True)
+    legacy = V.parse("4.00m")
+    k, ev = tie_break_by_legacy(["a", "b"], [3.0, 4.0], legacy, "m", rule, enabled=True)
     assert k == 1 and ev["n_agreeing"] == 1
-    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True)[0] == 0  # both print 4.00
-    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], "4.00m", "m", rule, enabled=True, decimals=3)[0] is None
-    assert tie_break_by_legacy(["a", "b"], [3.0, 4.0], "4.00m", "m", rule, enabled=False)[0] is None
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], legacy, "m", rule, enabled=True)[0] == 0  # both print 4.00
+    assert tie_break_by_legacy(["a", "b"], [3.996, 4.004], legacy, "m", rule, enabled=True, decimals=3)[0] is None
+    assert tie_break_by_legacy(["a", "b"], [3.0, 4.0], legacy, "m", rule, enabled=False)[0] is None
 
 
 def test_operator_of_how_far():
-    c = {"operator": "displacement"}
-    assert D.operator_of(c, "How far has the cyclist traveled from 1s to 4s?") == "path_length"
-    assert D.operator_of(c, "What is the displacement of the camera from 1s to 4s?") == "displacement"
+    # "how far ... traveled" reads literally as the path, with the statistic left open
+    assert D.operator_of("How far has the cyclist traveled from 1s to 4s?") == ("path_length", True)
+    assert D.operator_of("What is the displacement of the camera from 1s to 4s?") == ("displacement", False)
+    assert D.operator_of("What is the total distance traveled by the camera?") == ("path_length", False)
 
 
 # ----------------------------------------------------------------------------- the mini-world
@@ -129,6 +132,48 @@ def test_miniworld_defects_verdicts_values(disp_run, man, miniworld):
     assert {o.source for o in disp_run.outcomes} == {"ScanNet", "Waymo", "Omni6DPose"}
 
 
+def test_how_far_is_read_per_source(disp_run, man):
+    """'How far has X traveled' is read as the legacy construction of each source built it: the
+    ScanNet rows as the displacement (the generator built them so), the Waymo rows as the path."""
+    how_far = [o for o in disp_run.outcomes if o.verdict != "excluded" and "construction_statistic" in o.evidence]
+    by_source = {o.source: o.evidence["construction_statistic"]["statistic"] for o in how_far}
+    assert by_source == {"ScanNet": "displacement", "Waymo": "path_length"}
+    for o in how_far:
+        m = {x["row"]: x for x in man}[o.row]
+        assert o.contract["operator"] == m["contract"]["operator"], o.row
+        if o.source == "ScanNet":
+            assert {"statistic_unnamed", "distance_traveled_is_displacement"} <= set(o.defects)
+            assert "displacement (straight-line" in o.question
+            hyp = o.evidence["hypotheses"]  # the legacy value is the displacement
+            assert hyp["matches"]["displacement"] == (o.verdict == "retained"), o.row
+        else:
+            assert "distance_traveled_is_displacement" not in o.defects
+    scannet = [o for o in how_far if o.source == "ScanNet"]
+    assert sum(o.verdict == "retained" for o in scannet) >= 5
+    # at least five ScanNet rows discriminate: the legacy value matches the displacement only
+    assert sum(o.evidence["hypotheses"]["matches"] == {"displacement": True, "path_length": False}
+               for o in scannet) >= 5
+
+
+def test_reading_per_source_by_hand():
+    from resti_lib.tasks.motion import reading_per_source, row_reading
+
+    names = {"displacement": "displacement", "path_length": "path"}
+    rows = [("ScanNet", {"displacement": True, "path_length": False})] * 3 + \
+        [("ScanNet", {"displacement": False, "path_length": False})] + \
+        [("Waymo", {"displacement": True, "path_length": True})] * 2 + \
+        [("Omni6DPose", {"displacement": True, "path_length": False})] * 2 + \
+        [("Omni6DPose", {"displacement": False, "path_length": True})]
+    g = reading_per_source(rows, names, "path_length", 0.25)
+    assert g["ScanNet"]["statistic"] == "displacement" and g["ScanNet"]["n_displacement_only"] == 3
+    assert g["ScanNet"]["n_neither"] == 1 and not g["ScanNet"]["mixed"]
+    assert g["Waymo"]["statistic"] == "path_length" and g["Waymo"]["decided_by"].startswith("undetermined")
+    assert g["Omni6DPose"]["mixed"]  # 1 of 3 deciding rows reads the other way: each row keeps its own
+    assert row_reading({"displacement": False, "path_length": True}, g["Omni6DPose"])[0] == "path_length"
+    assert row_reading({"displacement": False, "path_length": False}, g["ScanNet"])[:2] == ("displacement", True)
+    assert row_reading({"displacement": True, "path_length": True}, g["Waymo"])[:2] == ("path_length", False)
+
+
 def test_miniworld_exclusions_and_questions(disp_run):
     assert disp_run.result.excluded and H.exclusion_problems(disp_run) == []
     for e in disp_run.result.excluded:
@@ -148,11 +193,13 @@ def test_miniworld_no_significant_attack_and_valid_options(disp_run):
 def test_subject_phrases_of_the_scalar_questions():
     from types import SimpleNamespace
 
-    from resti_lib.tasks.scalar_audit import subject_phrase, the_phrase
+    from resti_lib.referents import noun_phrase
+    from resti_lib.tasks.scalar_audit import subject_phrase
 
-    assert the_phrase("A white utility truck.") == "the white utility truck"
-    assert the_phrase("The  Office chair") == "the office chair"
-    assert the_phrase("TV stand") == "the TV stand"
-    assert the_phrase(None) == "the object"
+    assert noun_phrase("A white utility truck.") == "the white utility truck"
+    assert noun_phrase("The  Office chair") == "the office chair"
+    assert noun_phrase("TV stand") == "the TV stand"
+    assert noun_phrase("A U-turn sign") == "the U-turn sign"
+    assert noun_phrase(None) == "the object"
     assert subject_phrase(SimpleNamespace(kind="camera"), "a red car") == "the camera"
     assert subject_phrase(SimpleNamespace(kind="object"), "a red car") == "the red car (its 3D box centre)"

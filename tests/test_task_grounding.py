@@ -12,13 +12,16 @@ import pytest
 import trimesh
 
 from resti_lib import values as V
-from resti_lib.contract import parse_question
 from resti_lib.errors import InputError
 from resti_lib.measure import evaluate_contract
+from resti_lib.measure.boxes import scannet_box, validate_box, waymo_box
 from resti_lib.options.attacks import attack_table
+from resti_lib.referents import resolve
 from resti_lib.sources.scannet import ScanNetScene
 from resti_lib.sources.waymo import WaymoSegment
 from resti_lib.tasks import grounding as G
+from resti_lib.tasks import read_contract
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import check_defects, check_values, run_on_miniworld
 
 TASK = "3D Video Grounding"
@@ -77,20 +80,20 @@ def write_hand_scene(root, scene="scene0990_00", objects=None, poses=None):
 
 def test_scannet_box_by_hand(tmp_path):
     scene = ScanNetScene(write_hand_scene(tmp_path / "scans"), "scene0990_00")
-    box = G.scannet_box(scene, 0, 0.0)
+    box = scannet_box(scene, 0, 0.0)
     np.testing.assert_allclose(box.center, C_CAM_HAND, atol=1e-9)
     np.testing.assert_allclose(box.R, R_BOX_HAND, atol=1e-9)
     np.testing.assert_allclose(box.lwh, [2.0, 1.0, 1.0], atol=1e-9)
     assert box.chain == "P(t)^-1 A^-1 T_ann<-box"
-    checks = G.validate_box(box)
+    checks = validate_box(box)
     assert checks["max_orthonormality_error"] < 1e-12 and abs(checks["det"] - 1) < 1e-12
     # the view's hypotheses: correct chain and alignment omitted, both by hand
-    view = G.scannet_view(scene, 0.0, G.task_params({}))
+    view = G.scannet_view(scene, 0.0, G.Grounding().settings({}))
     (inst,) = view.instances
     np.testing.assert_allclose(inst.hypotheses["correct"], C_CAM_HAND, atol=1e-9)
     np.testing.assert_allclose(inst.hypotheses["alignment_omitted"], C_LEGACY_HAND, atol=1e-9)
     assert inst.visible  # (1, 0, 2) projects to u = 648 + 1170 / 2 inside the 1296 px image
-    np.testing.assert_allclose(inst.uv, (648.0 + 1170.0 * 0.5, 484.0), atol=1e-6)
+    assert inst.depth == pytest.approx(2.0)  # the box centre lies 2 m in front of the camera
 
 
 def test_box_in_camera_operator_is_the_same_computation(tmp_path):
@@ -126,31 +129,31 @@ def test_audit_rows_on_the_hand_scene(tmp_path):
                ("chair", (4.5, 2.9, 0.5), (0.5, 0.5, 1.0))]  # chairs in the camera: (-0.5, 0, 2), (-0.9, 0, 3.5)
     root = write_hand_scene(tmp_path / "scans", objects=objects, poses=[P_HAND, away])
     ctx = SourceContext(scannet_root=root)
-    p = G.task_params({})
+    p = G.Grounding().settings({})
     q = "Locate the 3D bounding box of the {}."
     # alignment omitted: corrected, the answer is the hand value
-    o = G.audit_row(_legacy_row(q.format("brown wooden table"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("brown wooden table"), _legacy_box(C_LEGACY_HAND)), ctx, p)
     assert o.verdict == "corrected" and "grounding_alignment_omitted" in o.defects and "unnamed_frame" in o.defects
     np.testing.assert_allclose(o.answer.value["center"], C_CAM_HAND, atol=1e-9)
     assert o.question.startswith("At 0 seconds (zero-based source frame 0 at 30 FPS), what is")
     # the correct chain: re-contracted (heading convention unstated, full rotation added), no source defect
-    o = G.audit_row(_legacy_row(q.format("table at 0s"), _legacy_box(C_CAM_HAND)), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("table at 0s"), _legacy_box(C_CAM_HAND)), ctx, p)
     assert o.verdict == "re-contracted" and "grounding_alignment_omitted" not in o.defects
     assert "unnamed_frame" not in o.defects and o.evidence["diagnosis"]["winner"] == "correct"
     # a centre no hypothesis reproduces: corrected with value_mismatch
-    o = G.audit_row(_legacy_row(q.format("table"), _legacy_box((0.3, 0.3, 0.3))), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("table"), _legacy_box((0.3, 0.3, 0.3))), ctx, p)
     assert o.verdict == "corrected" and "value_mismatch" in o.defects
     # exclusions with their evidence
-    o = G.audit_row(_legacy_row(q.format("black upright piano"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("black upright piano"), _legacy_box(C_LEGACY_HAND)), ctx, p)
     assert o.reasons == ["no_source_instance"] and "no_source_instance" in o.defects
     assert o.evidence["source_labels"] == ["chair", "table"]
-    o = G.audit_row(_legacy_row(q.format("two wooden tables"), _legacy_box(C_LEGACY_HAND)), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("two wooden tables"), _legacy_box(C_LEGACY_HAND)), ctx, p)
     assert o.reasons == ["grouped_referent"]
-    o = G.audit_row(_legacy_row(q.format("table"), _legacy_box(C_LEGACY_HAND), t=1 / 30), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("table"), _legacy_box(C_LEGACY_HAND), t=1 / 30), ctx, p)
     assert o.reasons == ["not_visible_at_frame"] and o.evidence["n_candidates"] == 1
     assert o.evidence["n_visible_instances"] == 0
     chair = G.scannet_view(ScanNetScene(root, "scene0990_00"), 0.0, p).instances[2]
-    o = G.audit_row(_legacy_row(q.format("grey chair"), _legacy_box(chair.hypotheses["alignment_omitted"])), ctx, p)
+    o = audit_row(TASK, _legacy_row(q.format("grey chair"), _legacy_box(chair.hypotheses["alignment_omitted"])), ctx, p)
     assert o.reasons == ["ambiguous_instance"] and o.evidence["n_visible_instances"] == 2
     assert o.evidence["diagnosis"]["legacy_points_at"] == "2" and "grounding_alignment_omitted" in o.defects
     assert o.evidence["value_spread_m"] == pytest.approx(math.hypot(0.4, 1.5), abs=1e-6)
@@ -201,11 +204,11 @@ def test_waymo_box_by_hand(tmp_path):
     root, seg = write_hand_segment(tmp_path / "waymo")
     s = WaymoSegment(root, seg)
     for t in (0.0, 0.1):
-        box = G.waymo_box(s, "truck1", t, 1)
+        box = waymo_box(s, "truck1", t, 1)
         np.testing.assert_allclose(box.center, [-2.0, 1.0, 8.5], atol=1e-9)
         np.testing.assert_allclose(box.R, [[0, -1, 0], [0, 0, -1], [1, 0, 0]], atol=1e-12)
         np.testing.assert_allclose(box.lwh, [4.0, 2.0, 1.5])
-    view = G.waymo_view(s, 1, 0.0, G.task_params({}))
+    view = G.waymo_view(s, 1, 0.0, G.Grounding().settings({}))
     (inst,) = view.instances
     np.testing.assert_allclose(inst.hypotheses["waymo_camera_axes"], [8.5, 2.0, -1.0], atol=1e-9)
     np.testing.assert_allclose(inst.hypotheses["vehicle_frame"], [10.0, 2.0, 1.0])
@@ -252,25 +255,25 @@ def test_heading_summary_convention():
     ("Black tv stand under the television", "tv stand", False),
 ])
 def test_resolve_description(desc, label, grouped):
-    vocab = {w: [w] for w in ("door", "trash can", "chair", "armchair", "wall", "table", "tv stand", "stand")}
-    r = G.resolve_description(desc, vocab, G.DEFAULTS["group_words"])
-    assert (r.label, r.grouped) == (label, grouped)
+    labels = ["door", "trash can", "chair", "armchair", "wall", "table", "tv stand", "stand"]
+    r = resolve(desc, "ScanNet", labels, group_words=G.Grounding().settings({})["group_words"])
+    assert (r.label, bool(r.grouped)) == (label, grouped)
 
 
 def test_resolve_waymo_nouns():
-    words = G.DEFAULTS["waymo_type_words"]
-    r = G.resolve_description("A white utility truck with a bucket lift", words, G.DEFAULTS["group_words"])
-    assert r.label == "TYPE_VEHICLE" and r.word == "truck" and r.finer_than_label
-    r = G.resolve_description("A pedestrian carrying a backpack", words, G.DEFAULTS["group_words"])
-    assert r.label == "TYPE_PEDESTRIAN" and not r.finer_than_label
-    assert G.resolve_description("A horse-drawn carriage", words, G.DEFAULTS["group_words"]).label is None
+    gw = G.Grounding().settings({})["group_words"]
+    r = resolve("A white utility truck with a bucket lift", "Waymo", group_words=gw)
+    assert r.box_type == "TYPE_VEHICLE" and r.label == "truck" and r.size_ranges["height"] == (2.2, 4.6)
+    r = resolve("A pedestrian carrying a backpack", "Waymo", group_words=gw)
+    assert r.box_type == "TYPE_PEDESTRIAN" and r.label == "pedestrian"
+    assert resolve("A horse-drawn carriage", "Waymo", group_words=gw).label is None
     # the head noun is the last match: a modifier naming another type does not win
-    r = G.resolve_description("the yellow pedestrian-crossing sign", words, G.DEFAULTS["group_words"])
-    assert r.label == "TYPE_SIGN" and r.word == "sign"
+    r = resolve("the yellow pedestrian-crossing sign", "Waymo", group_words=gw)
+    assert r.box_type == "TYPE_SIGN" and r.label == "sign"
 
 
 def _inst(i, hyp, shifted=None):
-    return G.Instance(str(i), "chair", None, np.zeros(3), True, hypotheses={k: np.asarray(v, float) for k, v in hyp.items()},
+    return G.Candidate(str(i), "chair", None, np.zeros(3), True, hypotheses={k: np.asarray(v, float) for k, v in hyp.items()},
                       shifted=shifted or {})
 
 
@@ -291,7 +294,7 @@ def test_score_hypotheses_winner_rules():
 
 
 def test_center_sigma_is_source_scaled():
-    p = G.task_params({})
+    p = G.Grounding().settings({})
     lwh = np.array([3.0, 4.0, 0.0])
     assert G.center_sigma("ScanNet", lwh, p) == pytest.approx(0.05 + 0.08 * 5)
     assert G.center_sigma("Omni6DPose", lwh * 0.05, p) < G.center_sigma("ScanNet", lwh, p) < \
@@ -363,11 +366,32 @@ def test_diagnosis_and_distances(mini):
             assert o.evidence["diagnosis"]["residuals_m"]["correct"] > 0.1
 
 
+def test_box_convention_and_rope_camera_evidence(mini, miniworld):
+    """The legacy ScanNet C_lwh were built on the annotation-frame axis-aligned box (world.json): the
+    task finds that convention from the rows whose sizes match one box only; the repaired box is the
+    tight one. ROPE rows name the camera track's static objects and the re-placed object left out."""
+    info = json.loads((miniworld / "world.json").read_text())
+    assert "axis-aligned box in the annotation frame" in info["conventions"]["scannet_boxes"]
+    sn = [o for o in mini.run.outcomes if o.source == "ScanNet" and "box_convention" in o.evidence]
+    assert sn and all(o.evidence["box_convention"] == sn[0].evidence["box_convention"] for o in sn)
+    conv = sn[0].evidence["box_convention"]
+    assert conv["convention"].startswith("axis-aligned") and conv["n_tight_only"] == 0
+    assert conv["n_axis_aligned_only"] >= 3 and conv["n_neither"] == 0
+    moving = {s["scene"]: s["moving_object"]["oid"] for s in info["sequences"]["omni6d"] if s["moving_object"]}
+    rope = [o for o in mini.run.outcomes if o.source == "Omni6DPose" and o.verdict != "excluded"]
+    assert rope
+    for o in rope:
+        ev = o.evidence["camera_track"]
+        scene = o.video.split(".")[0]
+        assert [x["oid"] for x in ev["left_out"]] == ([moving[scene]] if scene in moving else [])
+        assert "no motion" in ev["stored_camera"]
+
+
 def test_questions_state_the_contract(mini):
     for o in mini.run.outcomes:
         if o.verdict == "excluded":
             continue
-        c = parse_question({"Task": TASK, "Source": o.source, "Video": o.video, "Question": o.question,
+        c = read_contract({"Task": TASK, "Source": o.source, "Video": o.video, "Question": o.question,
                             "Prompt": "", "time_start": -1.0, "time_end": -1.0})
         assert c.time_stated and not c.missing, (o.row, c.missing)
         assert c.times[0] == pytest.approx(o.time_start, abs=1e-6)

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from resti_lib.contract import parse_question
 from resti_lib.geometry import trajectory as GT
 from resti_lib.geometry.frames import opencv_cam_pose_to_waymo
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.options.attacks import attack_table
 from resti_lib.tasks import orientation as O
-from tests.task_checks import check_defects, check_values, miniworld_params, run_on_miniworld
+from resti_lib.tasks import read_contract
+from tests.task_checks import check_defects, check_values, run_on_miniworld
 
 TASK = "Ego-Centric Orientation"
 
@@ -47,7 +47,7 @@ def test_heading_and_legacy_by_hand():
     a20, a60 = math.radians(20), math.radians(60)
     f1 = (math.cos(a20) * math.cos(a60), math.cos(a20) * math.sin(a60), -math.sin(a20))
     tr = track_of([look((1, 0, 0)), look(f1)])
-    conv = O.conventions(tracks_for(tr), 0.0, 1.0, O.task_params({}))
+    conv = O.conventions(tracks_for(tr), 0.0, 1.0, O.Orientation().settings({}))
     assert conv["gravity_heading"] == pytest.approx(60.0, abs=1e-9)
     # legacy: column 2 on the X-Z plane, from (x, z) = (1, 0) to (cos20 cos60, -sin20), positive from +Z to +X:
     # atan2(a_z b_x - a_x b_z, a_x b_x + a_z b_z) = atan2(sin20, cos20 cos60)
@@ -61,7 +61,7 @@ def test_heading_and_legacy_by_hand():
 def test_heading_sign_and_wrap():
     # turning right (clockwise seen from above) is negative; 190 deg to the left wraps to -170
     tr = track_of([look((1, 0, 0)), look((0, -1, 0)), look((math.cos(math.radians(190)), math.sin(math.radians(190)), 0))])
-    p = O.task_params({})
+    p = O.Orientation().settings({})
     assert O.conventions(tracks_for(tr), 0.0, 1.0, p)["gravity_heading"] == pytest.approx(-90.0, abs=1e-9)
     assert O.conventions(tracks_for(tr), 0.0, 2.0, p)["gravity_heading"] == pytest.approx(-170.0, abs=1e-9)
 
@@ -79,7 +79,7 @@ def test_invariance_under_rigid_rotation_of_trajectory_and_world():
             b = GT.horizontal_heading_deg(Q @ Rs[i], Q @ Rs[j], (0, 0, 1), Q @ up)
             worst = max(worst, abs((b - a + 180) % 360 - 180))
     assert worst <= 1e-9
-    assert O.invariance_error(tracks_for(tr), 0.0, 39.0, O.task_params({}), rng) <= 1e-9
+    assert O.invariance_error(tracks_for(tr), 0.0, 39.0, O.Orientation().settings({}), rng) <= 1e-9
 
 
 def test_waymo_source_axes_column2_is_up_and_forward_is_cv_z():
@@ -100,7 +100,7 @@ def test_shortened_interval_says_so():
     assert th == pytest.approx(90.0) and ev["shortened_to"] == 1.0
     q = O.rewrite_question(0.0, 1.0, 2.0)
     assert "last valid source camera pose" in q and "2.000000" in q
-    c = parse_question({"Task": TASK, "Source": "ScanNet", "Video": "scene0001_00.mp4", "Question": q,
+    c = read_contract({"Task": TASK, "Source": "ScanNet", "Video": "scene0001_00.mp4", "Question": q,
                         "time_start": 9.0, "time_end": 9.0})
     assert c.times == [0.0, 1.0] and c.time_stated and not c.missing
 
@@ -113,7 +113,7 @@ def test_end_within_one_frame_past_the_track_is_clamped_and_recorded():
 
 
 def test_option_spread_scales_with_the_answer():
-    p = O.task_params({})
+    p = O.Orientation().settings({})
     assert O.option_spread(0.2, p) == (2.0, 3.0)
     assert O.option_spread(-12.0, p) == (2.0, 12.0)
     assert O.option_spread(150.0, p) == (2.0, 30.0)
@@ -182,6 +182,6 @@ def test_attacks_at_chance(mini):
 
 
 def test_figures(mini, miniworld, tmp_path):
-    p = O.figure_endpoints(mini.run, miniworld_params(miniworld, tmp_path), tmp_path / "ends.png")
+    p = O.figure_endpoints(mini.run, tmp_path / "ends.png")
     q = O.figure_scatter(mini.run.outcomes, tmp_path / "scatter.png")
     assert p.stat().st_size > 5000 and q.stat().st_size > 5000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -10,7 +11,9 @@ import pytest
 from resti_lib import values as V
 from resti_lib.geometry.frames import make_T, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
+from resti_lib.measure.motion import sample_window
 from resti_lib.tasks import pose as P
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
     check_attacks,
     check_defects,
@@ -39,7 +42,22 @@ def test_pose_at_time_nearest_sample():
     T, ev = P.pose_at_time(tr, 5.02)
     assert ev["indices"] == [50] and ev["frame"] == [50]
     assert np.allclose(T[:3, 3], [5.0, 2.0, 1.0])
-    assert P.time_tolerance(tr) == pytest.approx(0.05)
+    assert sample_window(tr) == pytest.approx(0.05)
+
+
+def test_rotation_angle_of_a_rounded_matrix_is_its_rounding_not_three_degrees():
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("z", 35.0, degrees=True).as_matrix()
+    printed = np.round(R, 2)  # [[0.82, -0.57], [0.57, 0.82]] in the x-y block: agrees with R to 0.005
+    # by hand: the nearest rotation of [[a, -b], [b, a]] turns by atan2(b, a); arccos((trace - 1) / 2)
+    # of the unprojected product would say 2.99 degrees
+    want = 35.0 - math.degrees(math.atan2(0.57, 0.82))
+    assert P.rotation_angle_deg(R, printed) == pytest.approx(want, abs=1e-9) and want < 0.2
+    assert P.rotation_angle_deg(np.eye(3), printed) == pytest.approx(math.degrees(math.atan2(0.57, 0.82)), abs=1e-9)
+    Rx = Rotation.from_euler("xyz", [20.0, -50.0, 110.0], degrees=True).as_matrix()
+    assert P.rotation_angle_deg(Rx, np.round(Rx, 2)) < 0.5
+    assert P.rotation_angle_deg(np.eye(3), Rx) == pytest.approx(np.degrees(Rotation.from_matrix(Rx).magnitude()))
 
 
 def test_timestamp_search_finds_the_wrong_sample():
@@ -70,9 +88,10 @@ def test_resolve_premise_from_time_start_or_search():
 
 
 def test_trans_sigma_and_question():
-    assert P.trans_sigma("Waymo", 1.0, {}) == 2.0  # floor
-    assert P.trans_sigma("Waymo", 30.0, {}) == 15.0  # half the displacement
-    assert P.trans_sigma("ScanNet", 0.1, {"trans_sigma_floor": {"ScanNet": 0.4}}) == 0.4
+    p = P.Pose().settings({})
+    assert P.trans_sigma("Waymo", 1.0, p) == 2.0  # floor
+    assert P.trans_sigma("Waymo", 30.0, p) == 15.0  # half the displacement
+    assert P.trans_sigma("ScanNet", 0.1, P.Pose().settings({"trans_sigma_floor": {"ScanNet": 0.4}})) == 0.4
     q = P.question_text("Waymo", 3.0, 12.0, "{...}")
     for part in ("t=3 s", "t=12 s", "Waymo world coordinate frame", "camera-to-world", "OpenCV", "meters"):
         assert part in q
@@ -146,9 +165,13 @@ class _Rope:
     def world_up_in_track_frame(self, up):
         return np.asarray(up, float)
 
+    def camera_notes(self, up):
+        return []
+
 
 class _Ctx:
     video_map = None
+    omni6d_root = "stub"
 
     def __init__(self, rope):
         self._rope = rope
@@ -175,15 +198,15 @@ def test_omni_pose_relative_to_the_premise_camera():
     truth = invert_T(tr.T[20]) @ tr.T[50]  # camera at 5 s seen from the camera at 2 s
     r = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=5 s?",
              V.format_pose(truth), 2.0, 5.0)
-    o = P.audit_row(r, _Ctx(_Rope(tr)), {})
+    o = audit_row(TASK, r, _Ctx(_Rope(tr)), {})
     assert o.verdict == "retained" and not o.defects
     assert np.allclose(o.answer.value, truth)
     assert "t=2 s as the identity" in o.question and "t=5 s" in o.question
     wrong = _row(r["Question"], V.format_pose(tr.T[50]), 2.0, 5.0)  # legacy forgot to re-base
-    o2 = P.audit_row(wrong, _Ctx(_Rope(tr)), {})
+    o2 = audit_row(TASK, wrong, _Ctx(_Rope(tr)), {})
     assert o2.verdict == "corrected" and o2.defects == ["value_mismatch"]
     same = _row("Taking the camera pose at t=2 s as the identity, what is the camera pose at t=2 s?",
                 V.format_pose(np.eye(4)), 2.0, 2.0)
-    o3 = P.audit_row(same, _Ctx(_Rope(tr)), {})
+    o3 = audit_row(TASK, same, _Ctx(_Rope(tr)), {})
     assert o3.verdict == "excluded" and o3.reasons == ["premise_equals_target"]
     assert o3.defects == ["premise_equals_answer"] and o3.evidence["same_time"]

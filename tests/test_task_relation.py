@@ -12,6 +12,7 @@ from resti_lib.geometry.frames import make_T, yaw_matrix
 from resti_lib.rng import row_rng
 from resti_lib.tasks import relation as RE
 from resti_lib.tasks.base import AnswerSpec, build_options
+from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
     check_attacks,
     check_defects,
@@ -31,7 +32,7 @@ def test_mount_relation_from_extrinsic_yaw(yaw, label):
     E = make_T(yaw_matrix(math.radians(yaw)), [1.5, 0.0, 2.0])
     got, ev = RE.mount_relation(E, margin_deg=5.0)
     assert got == label
-    assert RE._circ(ev["yaw_deg"], yaw) < 1e-9
+    assert abs((ev["yaw_deg"] - yaw + 180.0) % 360.0 - 180.0) < 1e-9
     assert ev["edge_margin_deg"] == pytest.approx(22.5 - min(abs(yaw - c) for c in (0, 45, -45, 90, -90, 180)),
                                                   abs=1e-9)
 
@@ -128,6 +129,7 @@ class _Seg:
 
 class _Ctx:
     video_map = None
+    waymo_root = "stub"
 
     def __init__(self, E):
         self.seg = _Seg(E)
@@ -147,12 +149,12 @@ def test_mount_label_follows_the_calibration_not_the_name():
            "Question": "What is the orientation of the camera mounted on the moving car relative to the car's "
                        "forward direction?", "Answer Detail": "Front-Left", "Candidates": {}}
     E = make_T(yaw_matrix(math.radians(-45.0)), [1.5, -0.1, 2.1])  # FRONT_LEFT by name, faces front-right
-    o = RE.audit_row(row, _Ctx(E), {})
+    o = audit_row(TASK, row, _Ctx(E), {})
     assert o.answer.value == "Front-Right" and o.verdict == "corrected" and o.defects == ["value_mismatch"]
     assert o.evidence["mount"]["name_label"] == "Front-Left" and not o.evidence["mount"]["name_agrees_with_calibration"]
-    ok = RE.audit_row(row, _Ctx(make_T(yaw_matrix(math.radians(44.0)), [1.5, 0.1, 2.1])), {})
+    ok = audit_row(TASK, row, _Ctx(make_T(yaw_matrix(math.radians(44.0)), [1.5, 0.1, 2.1])), {})
     assert ok.verdict == "retained" and ok.answer.value == "Front-Left"
-    edge = RE.audit_row(row, _Ctx(make_T(yaw_matrix(math.radians(21.0)), [1.5, 0.1, 2.1])), {})
+    edge = audit_row(TASK, row, _Ctx(make_T(yaw_matrix(math.radians(21.0)), [1.5, 0.1, 2.1])), {})
     assert edge.reasons == ["no_dominant_relation"] and edge.evidence["edge_margin_deg"] == pytest.approx(1.5)
 
 

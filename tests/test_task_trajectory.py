@@ -133,7 +133,11 @@ def test_path_figure(traj_run, miniworld, tmp_path):
     o = next(o for o in traj_run.run.outcomes if o.evidence.get("operator", {}).get("turn_windows"))
     seq, cam = o.video[:-4].rsplit("_camera_", 1)
     track = WaymoSegment(miniworld / "waymo", seq).camera_track(int(cam))
-    p = TR.plot_path(track, o.evidence["operator"], tmp_path / "07_trajectory_path.png")
+    # the figure reads the row's evidence: the path there is the source track to the centimetre
+    ev = o.evidence["path"]
+    sel = (track.times >= o.time_start - 1e-6) & (track.times <= o.time_end + 1e-6) & track.valid
+    np.testing.assert_allclose(ev["xy"], track.positions[sel, :2] - track.positions[sel][0, :2], atol=0.005)
+    p = TR.plot_path(o.evidence, tmp_path / "07_trajectory_path.png")
     assert p.exists() and p.stat().st_size > 1000
 
 

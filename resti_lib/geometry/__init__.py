@@ -1,6 +1,7 @@
-"""Geometry: rigid transforms and axis conventions (:mod:`.frames`), pose tracks and trajectory
-operators (:mod:`.trajectory`)."""
+"""Geometry: rigid transforms and axis conventions (:mod:`.frames`), oriented boxes (:mod:`.boxes`),
+pose tracks and trajectory operators (:mod:`.trajectory`)."""
 
+from resti_lib.geometry.boxes import OrientedBox, upright_oriented_box  # noqa: F401
 from resti_lib.geometry.frames import (  # noqa: F401
     R_CV_FROM_WAYMO,
     R_WAYMO_FROM_CV,

@@ -11,8 +11,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import numbers
 import os
-import tempfile
+import re
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from ..errors import InputError
+from .files import atomic_write_bytes, open_regular, parse_json, read_json_object, read_jsonl
 
 LEGACY_COLUMNS = ("Video", "Source", "Task", "QType", "Question", "Prompt", "time_start", "time_end",
                   "Candidates", "Answer", "Answer Detail", "ID", "scene")
@@ -55,6 +57,8 @@ class Release:
     accepted_file: Path | None = None
     excluded_file: Path | None = None
     problems: list[Problem] = field(default_factory=list)
+    meta_file: Path | None = None
+    meta_error: str | None = None
 
 
 # ------------------------------------------------------------------------------------------ keys
@@ -106,11 +110,7 @@ def _candidates(value: Any, *, file, row) -> dict:
     if isinstance(value, dict):
         return value
     if isinstance(value, str):
-        try:
-            obj = json.loads(value)
-        except json.JSONDecodeError as e:
-            raise InputError(f"Candidates is not valid JSON ({e.msg} at char {e.pos})",
-                             file=file, row=row, field="Candidates") from None
+        obj = parse_json(value, file=file, row=row, field="Candidates", what="Candidates")
         if not isinstance(obj, dict):
             raise InputError("Candidates JSON is not an object", file=file, row=row, field="Candidates")
         return obj
@@ -140,14 +140,16 @@ def validate_row(r: dict, *, file, row) -> list[Problem]:
         for k, v in cand.items():
             if not isinstance(v, str) or not v.strip():
                 bad("candidate_strings", f"Candidates.{k}", f"candidate {k} is {v!r}, not a non-empty string")
-        if r.get("Answer") not in cand:
+        if not isinstance(r.get("Answer"), str) or r.get("Answer") not in cand:
             bad("answer_in_candidates", "Answer", f"answer letter {r.get('Answer')!r} is not a candidate")
-    if r.get("Answer") not in LETTERS:
+    if not isinstance(r.get("Answer"), str) or r.get("Answer") not in LETTERS:
         bad("answer_letter", "Answer", f"answer {r.get('Answer')!r} is not a letter A-E")
     ts, te = r.get("time_start"), r.get("time_end")
     try:
+        if isinstance(ts, (bool, str)) or isinstance(te, (bool, str)):
+            raise TypeError("times must be numbers")
         ts_f, te_f = float(ts), float(te)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         bad("finite_times", "time_start", f"times are not numbers: {ts!r}, {te!r}")
     else:
         if not math.isfinite(ts_f):
@@ -162,7 +164,23 @@ def validate_row(r: dict, *, file, row) -> list[Problem]:
     detail = r.get("Answer Detail")
     if not isinstance(detail, str) or not detail.strip():
         bad("answer_detail", "Answer Detail", f"Answer Detail is {detail!r}")
+    if not is_integer_id(r.get("ID")):
+        bad("id_format", "ID", f"ID {r.get('ID')!r} is not an integer")
     return out
+
+
+_INT_TEXT = re.compile(r"^[+-]?[0-9]+$")
+
+
+def is_integer_id(value: Any) -> bool:
+    """An integer ID: an int, an integral float, or the text of an integer (``3``, ``"3"``, ``3.0``)."""
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, numbers.Integral):
+        return True
+    if isinstance(value, (float, np.floating)):
+        return math.isfinite(value) and float(value).is_integer()
+    return isinstance(value, str) and bool(_INT_TEXT.match(value.strip()))
 
 
 def _raise_first(problems: list[Problem], strict: bool) -> None:
@@ -171,6 +189,16 @@ def _raise_first(problems: list[Problem], strict: bool) -> None:
 
 
 # ----------------------------------------------------------------------------------------- legacy
+
+def read_parquet_file(path: Path) -> pd.DataFrame:
+    """A parquet file (a regular file: a folder of parquet parts or a device is refused)."""
+    with open_regular(path) as f:
+        try:
+            return pd.read_parquet(f)
+        except Exception as e:  # noqa: BLE001 -- pyarrow raises several types for a damaged file
+            msg = " ".join(str(e).split())
+            raise InputError(f"cannot read parquet ({msg})", file=path) from None
+
 
 def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable[str] | None = None
                 ) -> tuple[pd.DataFrame, list[Problem]]:
@@ -185,19 +213,20 @@ def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable
     if not path.exists():
         raise InputError("file not found", file=path)
     if path.suffix == ".parquet":
-        try:
-            df = pd.read_parquet(path)
-        except Exception as e:  # pyarrow raises several types for a damaged file
-            raise InputError(f"cannot read parquet ({e})", file=path) from None
+        df = read_parquet_file(path)
         cols = list(df.columns)
+        if len(df) == 0:
+            raise InputError("the legacy benchmark has no rows (empty file)", file=path)
         index = np.arange(len(df))
         if tasks is not None and "Task" in df.columns:
             keep = df["Task"].isin(list(tasks)).to_numpy()
             df, index = df[keep], index[keep]
         records = df.to_dict("records")
     else:
-        records = _read_jsonl(path)
-        cols = sorted({k for r in records for k in r}) if records else []
+        records = read_jsonl(path)
+        if not records:
+            raise InputError("the legacy benchmark has no rows (empty file)", file=path)
+        cols = sorted({k for r in records for k in r})
         index = np.arange(len(records))
         if tasks is not None:
             wanted = set(tasks)
@@ -233,55 +262,80 @@ def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable
 
 # ---------------------------------------------------------------------------------------- release
 
-def _read_jsonl(path: Path) -> list[dict]:
-    rows = []
-    with open(path, encoding="utf-8") as f:
-        for n, line in enumerate(f, start=1):
-            if not line.strip():
-                continue
-            try:
-                obj = json.loads(line)
-            except json.JSONDecodeError as e:
-                raise InputError(f"line {n} is not valid JSON ({e.msg} at char {e.pos}); "
-                                 "truncated or damaged file?", file=path, row=f"line {n}") from None
-            if not isinstance(obj, dict):
-                raise InputError(f"line {n} is not a JSON object", file=path, row=f"line {n}")
-            rows.append(obj)
-    return rows
-
-
 def _row_id(r: dict, i: int) -> Any:
-    return r.get("ReSTI ID") or r.get("Legacy Row Key") or i
+    for col in ("ReSTI ID", "Legacy Row Key"):
+        v = r.get(col)
+        if isinstance(v, str) and v.strip():
+            return v
+    return i
+
+
+_KEY_RE = re.compile(r"^(?P<source>[^|]*)\|(?P<task>[^|]*)\|(?P<video>[^|]*)\|(?P<id>[^|]*)\|uid=[0-9a-f]{16}$")
+
+
+def key_problem(key: Any, *, source: Any, task: Any, video: Any, legacy_id: Any) -> str | None:
+    """Why ``key`` is not the Legacy Row Key of a row with these fields (``None`` when it is).
+
+    A key is ``Source|Task|Video|ID|uid=<16 lowercase hex>`` (:func:`legacy_row_keys`) and its
+    first four parts are the row's own fields.
+    """
+    if not isinstance(key, str):
+        return f"Legacy Row Key is {key!r}, not text"
+    m = _KEY_RE.match(key)
+    if m is None:
+        return f"Legacy Row Key {key!r} is not Source|Task|Video|ID|uid=<16 hex>"
+    stated = {"Source": source, "Task": task, "Video": video, "ID": legacy_id}
+    parts = {"Source": m["source"], "Task": m["task"], "Video": m["video"], "ID": m["id"]}
+    wrong = [k for k in stated if parts[k] != str(stated[k])]
+    if wrong:
+        return (f"Legacy Row Key {key!r} names {', '.join(f'{k} {parts[k]!r}' for k in wrong)} but the row has "
+                f"{', '.join(f'{k} {stated[k]!r}' for k in wrong)}")
+    return None
 
 
 def validate_release_rows(records: list[dict], file: Path | None) -> list[Problem]:
     """Schema problems of accepted release rows (per row) and duplicate ids (across rows)."""
     problems: list[Problem] = []
+    fname = str(file) if file else None
     for i, r in enumerate(records):
         rid = _row_id(r, i)
         missing = [c for c in RELEASE_COLUMNS if c not in r]
         if missing:
-            problems.append(Problem("columns", rid, missing[0], f"missing field(s) {missing}",
-                                    str(file) if file else None))
+            problems.append(Problem("columns", rid, missing[0], f"missing field(s) {missing}", fname))
         problems += validate_row(r, file=file, row=rid)
+        for col in ("ReSTI ID", "Legacy Row Key"):
+            v = r.get(col)
+            if col in r and not (isinstance(v, str) and v.strip()):
+                problems.append(Problem("row_ids", rid, col, f"{col} is {v!r}, not a non-empty text", fname))
+        if isinstance(r.get("Legacy Row Key"), str) and r["Legacy Row Key"].strip():
+            msg = key_problem(r["Legacy Row Key"], source=r.get("Source"), task=r.get("Task"),
+                              video=r.get("Video"), legacy_id=r.get("ID"))
+            if msg:
+                problems.append(Problem("legacy_key_format", rid, "Legacy Row Key", msg, fname))
     for col in ("ReSTI ID", "Legacy Row Key"):
-        counts = Counter(r.get(col) for r in records if r.get(col) is not None)
+        counts = Counter(r.get(col) for r in records if isinstance(r.get(col), str))
         for v, n in counts.items():
             if n > 1:
-                problems.append(Problem("unique_ids", v, col, f"{col} {v!r} appears {n} times",
-                                        str(file) if file else None))
+                problems.append(Problem("unique_ids", v, col, f"{col} {v!r} appears {n} times", fname))
     return problems
 
 
 def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
     problems: list[Problem] = []
+    fname = str(file) if file else None
     for i, r in enumerate(records):
-        rid = r.get("key", i)
+        rid = r["key"] if isinstance(r.get("key"), str) and r["key"].strip() else i
         missing = [c for c in EXCLUDED_REQUIRED if c not in r]
         if missing:
-            problems.append(Problem("columns", rid, missing[0], f"exclusion record lacks {missing}",
-                                    str(file) if file else None))
+            problems.append(Problem("columns", rid, missing[0], f"exclusion record lacks {missing}", fname))
             continue
+        if not (isinstance(r["key"], str) and r["key"].strip()):
+            problems.append(Problem("row_ids", rid, "key", f"key is {r['key']!r}, not a non-empty text", fname))
+        else:
+            msg = key_problem(r["key"], source=r.get("source"), task=r.get("task"), video=r.get("legacy_video"),
+                              legacy_id=r.get("legacy_id"))
+            if msg:
+                problems.append(Problem("legacy_key_format", rid, "key", msg, fname))
         if not isinstance(r["reason_codes"], list) or not r["reason_codes"]:
             problems.append(Problem("exclusion_reasons", rid, "reason_codes", "reason_codes is empty",
                                     str(file) if file else None))
@@ -292,7 +346,7 @@ def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
         if r.get("source") not in SOURCES and not malformed:
             problems.append(Problem("known_source", rid, "source", f"unknown source {r.get('source')!r}",
                                     str(file) if file else None))
-    counts = Counter(r.get("key") for r in records)
+    counts = Counter(r.get("key") for r in records if isinstance(r.get("key"), str))
     for v, n in counts.items():
         if n > 1:
             problems.append(Problem("unique_ids", v, "key", f"exclusion key {v!r} appears {n} times",
@@ -303,14 +357,53 @@ def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
 def _find(root: Path, names: Iterable[str]) -> Path | None:
     for n in names:
         for cand in (root / n, root / "annotations" / n):
-            if cand.exists():
+            if cand.exists() or cand.is_symlink():
                 return cand
     return None
 
 
+def _read_meta(meta_file: Path, strict: bool) -> tuple[dict | None, str | None]:
+    """``release.json`` as an object, or (non-strict) ``None`` and why it cannot be used."""
+    try:
+        meta = read_json_object(meta_file)
+    except InputError as e:
+        if strict:
+            raise
+        return None, e.message
+    counts = meta.get("counts")
+    if strict and counts is not None and not isinstance(counts, dict):
+        raise InputError(f"counts is a JSON {type(counts).__name__}, not an object", file=meta_file,
+                         field="counts")
+    return meta, None
+
+
+def _accepted_records(acc: Path, strict: bool) -> list[dict]:
+    if acc.suffix == ".parquet":
+        records = read_parquet_file(acc).to_dict("records")
+    else:
+        records = read_jsonl(acc)
+    for i, r in enumerate(records):
+        if isinstance(r.get("Candidates"), dict):
+            if acc.suffix == ".parquet":  # parquet structs may carry None for absent letters
+                r["Candidates"] = {k: v for k, v in r["Candidates"].items() if v is not None}
+            continue
+        try:
+            r["Candidates"] = _candidates(r.get("Candidates"), file=acc, row=_row_id(r, i))
+        except InputError:
+            if strict:
+                raise
+    return records
+
+
 def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
     """Read a ReSTI-schema release: a folder (``resti.jsonl`` or ``resti.parquet``, ``excluded.jsonl``,
-    optional ``release.json``) or a single accepted-rows file (``.jsonl`` / ``.parquet``)."""
+    optional ``release.json``) or a single accepted-rows file (``.jsonl`` / ``.parquet``).
+
+    Files that cannot be read at all (not UTF-8, not a regular file, a line that is not a JSON
+    object) raise :class:`InputError`. Row problems raise when ``strict``; otherwise they are
+    returned in :attr:`Release.problems` (``resti verify`` reports them per check). A ``release.json``
+    that is not a JSON object is, when not strict, reported in :attr:`Release.meta_error`.
+    """
     path = Path(path)
     if not path.exists():
         raise InputError("release not found", file=path)
@@ -321,35 +414,17 @@ def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
             raise InputError("no resti.jsonl or resti.parquet in the release folder", file=path)
     else:
         acc = path
-    if acc.suffix == ".parquet":
-        try:
-            records = pd.read_parquet(acc).to_dict("records")
-        except Exception as e:
-            raise InputError(f"cannot read parquet ({e})", file=acc) from None
-        for i, r in enumerate(records):
-            r["Candidates"] = _candidates(r.get("Candidates"), file=acc, row=_row_id(r, i)) \
-                if not isinstance(r.get("Candidates"), dict) else r["Candidates"]
-            if isinstance(r["Candidates"], dict):  # parquet structs may carry None for absent letters
-                r["Candidates"] = {k: v for k, v in r["Candidates"].items() if v is not None}
-    else:
-        records = _read_jsonl(acc)
-        for i, r in enumerate(records):
-            if not isinstance(r.get("Candidates"), dict):
-                try:
-                    r["Candidates"] = _candidates(r.get("Candidates"), file=acc, row=_row_id(r, i))
-                except InputError:
-                    if strict:
-                        raise
+    records = _accepted_records(acc, strict)
     problems = validate_release_rows(records, acc)
     exc_file = _find(root, ("excluded.jsonl",)) if path.is_dir() else None
-    excluded = _read_jsonl(exc_file) if exc_file else []
+    excluded = read_jsonl(exc_file) if exc_file else []
     problems += validate_excluded(excluded, exc_file)
     _raise_first(problems, strict)
     meta_file = _find(root, ("release.json",)) if path.is_dir() else None
-    meta = json.loads(meta_file.read_text(encoding="utf-8")) if meta_file else None
+    meta, meta_error = _read_meta(meta_file, strict) if meta_file else (None, None)
     df = pd.DataFrame.from_records(records)
     return Release(accepted=df, excluded=excluded, meta=meta, root=root, accepted_file=acc,
-                   excluded_file=exc_file, problems=problems)
+                   excluded_file=exc_file, problems=problems, meta_file=meta_file, meta_error=meta_error)
 
 
 # ---------------------------------------------------------------------------------------- writers
@@ -357,20 +432,6 @@ def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
 def jsonl_text(rows: Iterable[dict], *, sort_keys: bool = False) -> str:
     """One JSON object per line, UTF-8 text kept as is (the v5 encoding), trailing newline."""
     return "".join(json.dumps(r, ensure_ascii=False, sort_keys=sort_keys) + "\n" for r in rows)
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write to a temporary file in the same folder, then rename over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_jsonl(rows: Iterable[dict], path: Path, *, sort_keys: bool = False) -> None:

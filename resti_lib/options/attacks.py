@@ -99,6 +99,15 @@ class Attack:
 ATTACKS: dict[str, Attack] = {}
 
 
+def load_families() -> dict[str, Attack]:
+    """The registry with every family loaded: the other families live in their own modules
+    (:mod:`.tells`, :mod:`.readers`, :mod:`.learned`), which import this one and register on import;
+    they are imported here, on first use, so no module-level import cycle arises."""
+    from . import learned, readers, tells  # noqa: F401
+
+    return ATTACKS
+
+
 def attack(name: str, kinds: Iterable[str], description: str, *, family: str = "option", scope: str = "row",
            tests: int = 1):
     """Register an attack (decorator). ``kinds``: value kinds it reads (``scalar``, ``angle``, ``box``,
@@ -770,6 +779,7 @@ def select(families=None, attacks=None, *, fast: bool = False) -> list[str]:
     """Attack names of the chosen ``families`` (None or ``"all"``: every family) and/or ``attacks``
     (names; None: every attack of the families); ``fast`` leaves the learned families out. Unknown
     names raise ``ValueError``."""
+    load_families()
     if families in (None, "all"):
         fams = list(FAMILIES)
     else:
@@ -813,8 +823,9 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     An attack with several directions keeps, per cell, the direction with the most expected hits and
     its p-value is multiplied by the number of directions too.
     """
-    from ..statistics import UNDERPOWERED_AT, attack_power
+    from .power import UNDERPOWERED_AT, attack_power
 
+    load_families()
     tests = {**{n: a.tests for n, a in ATTACKS.items()}, **(tests or {})}
     if len(picks) == 0:
         return pd.DataFrame(columns=COLUMNS)
@@ -951,9 +962,3 @@ def headline(table: pd.DataFrame) -> pd.DataFrame:
     df = df.assign(_g=~df["significant"], _t=df["task"].map(task_order),
                    _s=df["source"].map(lambda s: src_order.get(s, 99)))
     return df.sort_values(["_g", "_t", "_s"], kind="stable").drop(columns=["_g", "_t", "_s"]).reset_index(drop=True)
-
-
-# The other families register on import (they use the registry above).
-from . import learned as _learned  # noqa: F401
-from . import readers as _readers  # noqa: F401
-from . import tells as _tells  # noqa: F401

@@ -31,12 +31,9 @@ from scipy.spatial.transform import Rotation
 
 from .. import LETTERS
 from .. import values as V
+from ..errors import OptionError  # noqa: F401  (raised here; the class lives with every resti error)
 
 MAX_TRIES = 400
-
-
-class OptionError(RuntimeError):
-    """Distractors could not be built under the constraints (the row is then excluded)."""
 
 
 @dataclass

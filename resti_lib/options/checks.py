@@ -52,21 +52,35 @@ class ParsedRow:
         return not self.errors and sorted(self.values) == list(LETTERS)
 
 
+def _text(v) -> str | None:
+    return v if isinstance(v, str) else None
+
+
 def parse_row(r: dict, rid: object) -> ParsedRow:
-    cand = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
+    """Parse a row once. Fields of the wrong type (a list as Task, a number as a candidate) are kept
+    out of the parsed values, so every check sees plain text and reports instead of failing."""
+    raw = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
+    cand = {str(k): v for k, v in raw.items()}
     vals, errs = {}, {}
     for k, s in cand.items():
+        if not isinstance(s, str):
+            errs[k] = f"candidate is a {type(s).__name__}, not text"
+            continue
         try:
             vals[k] = V.parse(s, row=rid, field=f"Candidates.{k}")
         except InputError as e:
             errs[k] = e.message
     dv, de = None, None
-    try:
-        dv = V.parse(r.get("Answer Detail"), row=rid, field="Answer Detail")
-    except InputError as e:
-        de = e.message
-    return ParsedRow(rid=rid, task=r.get("Task"), source=r.get("Source"), candidates=cand,
-                     answer=r.get("Answer"), detail=r.get("Answer Detail"), values=vals, errors=errs,
+    detail = r.get("Answer Detail")
+    if not isinstance(detail, str):
+        de = f"Answer Detail is {type(detail).__name__}, not text"
+    else:
+        try:
+            dv = V.parse(detail, row=rid, field="Answer Detail")
+        except InputError as e:
+            de = e.message
+    return ParsedRow(rid=rid, task=_text(r.get("Task")), source=_text(r.get("Source")), candidates=cand,
+                     answer=_text(r.get("Answer")), detail=_text(detail), values=vals, errors=errs,
                      detail_value=dv, detail_error=de, time_start=r.get("time_start"),
                      time_end=r.get("time_end"))
 
@@ -163,8 +177,10 @@ def _finite(p: ParsedRow):
 @row_check("time_order")
 def _times(p: ParsedRow):
     try:
+        if isinstance(p.time_start, (str, bool)) or isinstance(p.time_end, (str, bool)):
+            raise TypeError
         ts, te = float(p.time_start), float(p.time_end)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return f"times not numeric ({p.time_start!r}, {p.time_end!r})"
     if not (math.isfinite(ts) and math.isfinite(te)):
         return f"non-finite time ({ts}, {te})"
@@ -205,4 +221,53 @@ def _boxes(p: ParsedRow):
             tol = math.degrees(2 * eps / scale) + 0.005 + 1e-9
             if abs(float(V.wrap_degrees(h - v.heading))) > tol:
                 msgs.append(f"{k}: C_heading {v.heading} != atan2(R10,R00) {h:.3f}")
+    return "; ".join(msgs) or None
+
+
+# Physically possible values of the benchmark's answers: a magnitude is never negative, a signed
+# angle lies in [-180°, 180°], and no distance, speed or acceleration of a room, a street scene or
+# a desktop comes near these ceilings (ReSTI v5: lengths <= 464 m, pose translations <= 42.4 km in
+# Waymo's world frame, speeds <= 33.8 m/s, accelerations <= 0.42 m/s²).
+VALUE_CEILING = {"length": 1.0e6, "speed": 1.0e3, "acceleration": 1.0e3}  # m, m/s, m/s²
+ANGLE_LIMIT_DEG = 180.0
+
+
+def range_problems(v) -> list[str]:
+    """Why a parsed value is outside the physically possible range (empty when it is inside)."""
+    if not v.finite():
+        return []  # reported by finite_values
+    out = []
+    if isinstance(v, V.Scalar):
+        if v.is_angle:
+            if abs(v.value) > ANGLE_LIMIT_DEG:
+                out.append(f"angle {v.text.strip()} outside [-180°, 180°]")
+        elif v.dimension in VALUE_CEILING:
+            if v.si < 0:
+                out.append(f"negative {v.dimension} {v.text.strip()}")
+            elif v.si > VALUE_CEILING[v.dimension]:
+                out.append(f"{v.dimension} {v.text.strip()} above {VALUE_CEILING[v.dimension]:g} (SI)")
+    elif isinstance(v, V.Box):
+        if max(abs(x) for x in v.center) > VALUE_CEILING["length"]:
+            out.append(f"box centre {v.center} farther than {VALUE_CEILING['length']:g} m")
+        if max(v.lwh) > VALUE_CEILING["length"]:
+            out.append(f"box edge lengths {v.lwh} above {VALUE_CEILING['length']:g} m")
+        if v.heading is not None and abs(v.heading) > ANGLE_LIMIT_DEG:
+            out.append(f"box heading {v.heading} outside [-180°, 180°]")
+    elif isinstance(v, V.Pose):
+        if max(abs(x) for x in v.t) > VALUE_CEILING["length"]:
+            out.append(f"pose translation {v.t} farther than {VALUE_CEILING['length']:g} m")
+    elif isinstance(v, V.Trajectory):
+        for kind, x in v.segments:
+            if kind == "move" and not 0.0 <= x <= VALUE_CEILING["length"]:
+                out.append(f"move {x} m outside [0, {VALUE_CEILING['length']:g}] m")
+            if kind == "turn" and abs(x) > ANGLE_LIMIT_DEG:
+                out.append(f"turn {x}° outside [-180°, 180°]")
+    return out
+
+
+@row_check("value_ranges")
+def _ranges(p: ParsedRow):
+    msgs = [f"{k}: {m}" for k, v in sorted(p.values.items()) for m in range_problems(v)]
+    if p.detail_value is not None:
+        msgs += [f"Answer Detail: {m}" for m in range_problems(p.detail_value)]
     return "; ".join(msgs) or None

@@ -7,7 +7,7 @@ that options must be conditioned on (and that attacks exploit):
 ============== ============================================================================================
 field          meaning
 ============== ============================================================================================
-``operator``   question type from :func:`resti_lib.contract.parse_question` (``displacement``,
+``operator``   question type (:func:`question_type`: ``displacement``,
                ``path_length``, ``average_velocity``, ``acceleration``, ``dimension``, ``pose`` ...)
 ``qtype``      ``operator`` refined where the operator has variants (``dimension:height``,
                ``average_speed@instant``)
@@ -24,8 +24,10 @@ field          meaning
 ``camera``     Waymo camera number from the video name (1-5), else None
 ============== ============================================================================================
 
-Times, operators and subject descriptions come from :mod:`resti_lib.contract` (one question parser);
-value strings (the premise pose) are parsed by :mod:`resti_lib.values` only. Nothing here reads the
+Times, the object description and object pairs are read with the readers of :mod:`resti_lib.contract`;
+the question type with the words the task contracts use (:func:`question_type`), since a release row
+carries no contract; the head noun with :func:`resti_lib.referents.read_phrase`; value strings (the
+premise pose) are parsed by :mod:`resti_lib.values` only. Nothing here reads the
 answer or the candidates, so observables are safe to use when building options.
 """
 
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import values as V
-from ..contract import parse_question
+from .. import contract as C
 from ..errors import InputError
 from ..sources.mapping import map_video
 
@@ -58,11 +60,6 @@ __all__ = [
 _PER_WINDOW = {"displacement": "speed", "path_length": "speed", "trajectory": "speed", "heading_change": "turn rate"}
 RATE_OPERATORS = {"average_velocity": "speed", "average_speed": "speed", "acceleration": "acceleration"}
 
-# A subject description ends its noun phrase at the first of these (prepositions, participles, commas).
-_CUT = re.compile(r",|;|\(|\b(?:with|in|on|under|beside|near|next|against|behind|above|below|at|from|by|"
-                  r"inside|into|onto|over|between|along|filled|viewed|wearing|holding|carrying|attached|"
-                  r"adjacent|that|which|who|whose|where|parked|sitting|standing|lying|hanging|mounted|"
-                  r"covered|facing|full|placed|leaning|driving|walking|moving)\b", re.IGNORECASE)
 _PREFIX = re.compile(r"^(?:(?:target\s+)?object\s+description|objects?|target)\s*:\s*", re.IGNORECASE)
 _LEAD = re.compile(r"^(?:bounding\s+box(?:es)?\s+of\s+)?(?:the|a|an|two|three|some|several)\s+", re.IGNORECASE)
 _RATE_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*-?\s*second\s+(?:central\s+)?windows?", re.IGNORECASE)
@@ -120,15 +117,18 @@ def head_noun(description: str | None) -> str | None:
 
     ``"A small brown teddy bear wearing a blue shirt"`` -> ``"bear"``; ``"Office chairs in front of a
     bookshelf"`` -> ``"chair"``; ``"Object description: Black Ford pickup truck"`` -> ``"truck"``.
-    The noun phrase ends at the first preposition, participle, conjunction or comma; its last word
-    is the head.
+    The head noun phrase is read by :func:`resti_lib.referents.read_phrase` (the one phrase reader:
+    it ends at the first cut word or punctuation); its last word is the head.
     """
+    from ..referents import read_phrase
+
     if not description:
         return None
     s = _PREFIX.sub("", " ".join(str(description).split()))
     s = _LEAD.sub("", s)
-    s = _CUT.split(s, maxsplit=1)[0]
-    words = re.findall(r"[A-Za-z][A-Za-z-]*", s)
+    words = re.findall(r"[a-z][a-z]*", read_phrase(s).head)
+    while len(words) > 1 and words[-1].endswith(("ing", "ed")):  # "trash can overflowing" -> "can"
+        words.pop()
     return _singular(words[-1]) if words else None
 
 
@@ -173,28 +173,92 @@ def _float(x) -> float | None:
     return v if math.isfinite(v) else None
 
 
+_CAMERA_WORDS = ("camera", "ego", "our car", "the vehicle we", "recording vehicle")
+_PATH_WORDS = ("total distance", "trajectory length", "path length", "distance traveled")
+_DESCRIPTION_PATTERNS = (r"bounding box of (?:the |a |an )?(.+?)(?: in (?:the |an )?(?:\w+ )?OpenCV|[.?]?$)",
+                         r"(?:length|width|height) of (?:the |a |an )?(.+?)\?",
+                         r"close is the camera to (?:the |a |an )?(.+?)(?: at |\?)",
+                         r"How far has (?:the |a |an )?(.+?) traveled",
+                         r"How quickly is (?:the |a |an )?(.+?) accelerating")
+
+
+def question_type(row: dict, q: str) -> tuple[str, dict]:
+    """``(operator, entity)`` of a question read from its text, the way the task contracts read them
+    (:mod:`resti_lib.tasks`): the operator of the task and, for the motion and dimension tasks, the
+    variant the words name; the entity ``{"kind": camera | object | object_pair, "description(s)"}``.
+    A release row carries no contract, so a blind reader (and the attack suite) reads it from here."""
+    task, ql = row.get("Task"), q.lower()
+    camera = {"kind": "camera"}
+
+    def obj():
+        d = C.description(row, q, _DESCRIPTION_PATTERNS)
+        if d is None:
+            m = _OF_SUBJECT.search(q)
+            d = m.group(1).strip() if m else None
+        return {"kind": "object", "description": d}
+
+    if task == "3D Video Grounding":
+        return "box_in_camera", obj()
+    if task == "Ego-Centric Orientation":
+        return "heading_change", camera
+    if task == "Pose Estimation":
+        return "pose", camera
+    if task == "Trajectory Description":
+        return "trajectory", camera
+    if task in ("Displacement & Path Length", "Speed & Acceleration"):
+        if "accelerat" in ql:
+            op = "acceleration"
+        elif task == "Speed & Acceleration":
+            op = "average_speed" if "speed" in ql else "average_velocity"
+        else:
+            op = "path_length" if any(w in ql for w in _PATH_WORDS) and "displacement" not in ql else "displacement"
+        return op, (camera if any(w in ql for w in _CAMERA_WORDS) else obj())
+    if task == "Dimensional Measurement":
+        pair = C.object_pair(q)
+        if pair and "distance" in ql:
+            return "object_distance", {"kind": "object_pair", "descriptions": list(pair)}
+        if "close is the camera" in ql or "from the camera" in ql or "camera to" in ql:
+            return "distance_to_camera", obj()
+        m = re.search(r"\b(length|width|height)\b", ql)
+        return (f"dimension:{m.group(1)}", obj()) if m else ("unknown", obj())
+    if task == "Spatial Relation":
+        if "mounted" in ql:
+            return "mounted_relation", camera
+        pair = C.object_pair(q)
+        if pair:
+            return "relative_position", {"kind": "object_pair", "descriptions": list(pair)}
+    return "unknown", {}
+
+
 def observe(row: dict) -> Observables:
     """The observables of one ReSTI (or legacy) row. Never raises on odd question text: what cannot be
     read is None."""
-    q = " ".join(str(row.get("Question") or "").split())
+    q = C.question_text(row)
     video = str(row.get("Video") or "")
     sequence, camera = sequence_of(video)
     task, source = row.get("Task"), row.get("Source")
-    try:
-        c = parse_question({**row, "Task": task, "Source": source, "Video": video, "Question": q})
-        operator, entity, times, params = c.operator, c.entity, list(c.times), c.params
-    except (KeyError, TypeError, ValueError):
-        operator, entity, times, params = "unknown", {}, [], {}
-    times = [t for t in (_float(t) for t in times) if t is not None]
+    operator, entity = question_type(row, q)
+    qtype = operator
+    operator = operator.split(":", 1)[0]
+    times = [t for t in (_float(t) for t in C.find_times(q)[0]) if t is not None]
     if not times:
         times = [t for t in (_float(row.get("time_start")), _float(row.get("time_end"))) if t is not None]
+    premise = premise_pose(q, row=row.get("ReSTI ID")) if task == "Pose Estimation" else None
+    premise_time = None
+    if task == "Pose Estimation":
+        stamps = [float(x) for x in re.findall(rf"t\s*=\s*({C.NUM})\s*s", q)]
+        if len(stamps) >= 2 or (len(stamps) == 1 and premise is not None and "initial" not in q.lower()
+                                and "identity" not in q.lower()):
+            premise_time, times = stamps[0], stamps[-1:]
+        elif len(stamps) == 1:
+            premise_time, times = 0.0, stamps
+    elif task in ("3D Video Grounding", "Dimensional Measurement", "Spatial Relation") and len(times) > 1 \
+            and C.find_times(q)[1]:
+        times = times[:1]
     t0, t1 = (times[0], times[-1]) if times else (None, None)
     m = _RATE_WINDOW.search(q)
     rate_window = float(m.group(1)) if m else None
-    qtype = operator
-    if operator == "dimension" and params.get("dimension"):
-        qtype = f"dimension:{params['dimension']}"
-    elif operator in RATE_OPERATORS and t0 is not None and t0 == t1:
+    if operator in RATE_OPERATORS and t0 is not None and t0 == t1:
         qtype = f"{operator}@instant"
     subject = entity.get("kind")
     descriptions = [entity["description"]] if entity.get("description") else list(entity.get("descriptions") or [])
@@ -202,15 +266,11 @@ def observe(row: dict) -> Observables:
         noun, description = "camera", None
     else:
         description = descriptions[-1] if descriptions else None
-        if description is None and subject == "object":
-            m = _OF_SUBJECT.search(q)
-            description = m.group(1).strip() if m else None
         noun = head_noun(description)
-    premise = premise_pose(q, row=row.get("ReSTI ID")) if task == "Pose Estimation" else None
     return Observables(task=task, source=source, video=video, sequence=sequence, camera=camera, operator=operator,
                        qtype=qtype, subject=subject, noun=noun, description=description, t0=t0, t1=t1,
                        rate_window=rate_window, premise=premise,
-                       premise_time=_float(params.get("premise_time")) if premise is not None else None)
+                       premise_time=premise_time if premise is not None else None)
 
 
 def observe_all(records: list[dict]) -> list[Observables]:

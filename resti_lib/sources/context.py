@@ -19,6 +19,22 @@ ROOT_KEYS = {"ScanNet": "scannet_root", "Waymo": "waymo_root", "Omni6DPose": "om
 # Opened sequences shared by every context of the process (several task audits in one process
 # read each sequence once). Keyed by source, root, sequence and frame rate; inputs are read-only.
 _OPENED: dict[tuple, object] = {}
+# Data derived from an opened sequence (tracks, instance lists, frame views), kept beside it here
+# rather than on the reader object: id(sequence) -> (sequence, {key: value}).
+_DERIVED: dict[int, tuple[object, dict]] = {}
+
+
+def derived(seq, key, make):
+    """``make()`` computed once per opened sequence ``seq`` and ``key``: tracks, instance lists and
+    frame views derived from a sequence are kept here, shared by every question and every context of
+    the process like the sequences themselves, never attached to the reader object."""
+    entry = _DERIVED.get(id(seq))
+    if entry is None or entry[0] is not seq:
+        entry = _DERIVED[id(seq)] = (seq, {})
+    memo = entry[1]
+    if key not in memo:
+        memo[key] = make()
+    return memo[key]
 
 
 @dataclass
@@ -79,6 +95,10 @@ class SourceContext:
         if k not in _OPENED:
             _OPENED[k] = RopeScene(root, scene, fps=self.omni6d_fps)
         return _OPENED[k]
+
+    def derived(self, seq, key, make):
+        """:func:`derived` (data computed once per opened sequence)."""
+        return derived(seq, key, make)
 
     def sequence(self, video: str):
         """The opened source sequence of a video (ScanNetScene, WaymoSegment or RopeScene)."""

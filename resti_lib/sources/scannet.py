@@ -28,7 +28,8 @@ from typing import BinaryIO
 import numpy as np
 
 from resti_lib.errors import ContractError, InputError
-from resti_lib.geometry.frames import apply_T, check_rotation, invert_T, make_T, yaw_matrix
+from resti_lib.geometry.boxes import OrientedBox, upright_oriented_box
+from resti_lib.geometry.frames import apply_T, check_rotation, invert_T
 from resti_lib.geometry.trajectory import PoseTrack
 
 __all__ = [
@@ -352,72 +353,6 @@ def read_pose_dir(pose_dir: str | Path, *, rotation_tol: float = ROTATION_TOL
 # instances
 
 @dataclass
-class OrientedBox:
-    """An oriented box: ``center`` and ``R = R_frame_from_box`` in some frame, edge lengths ``lwh``.
-
-    ``lwh = (length, width, height)`` are the box-local edge lengths along box +X, +Y, +Z.
-    """
-
-    center: np.ndarray
-    R: np.ndarray
-    lwh: np.ndarray
-
-    @property
-    def T(self) -> np.ndarray:
-        """``T_frame_from_box`` (4x4)."""
-        return make_T(self.R, self.center)
-
-    def corners(self) -> np.ndarray:
-        """The 8 corners ``[8, 3]`` in the box's frame of reference."""
-        s = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-        return apply_T(self.T, s * self.lwh)
-
-    def transformed(self, T_new_from_frame: np.ndarray) -> OrientedBox:
-        """The same box expressed in another frame (rigid ``T_new_from_frame``)."""
-        T = np.asarray(T_new_from_frame, dtype=np.float64) @ self.T
-        return OrientedBox(T[:3, 3].copy(), T[:3, :3].copy(), self.lwh.copy())
-
-
-def upright_oriented_box(points: np.ndarray) -> OrientedBox:
-    """Gravity-upright oriented box of points in a +Z-up frame (PCA on the horizontal plane).
-
-    The box yaw is the principal axis of the points' XY coordinates (2x2 covariance); the extents
-    are the point ranges along that axis, its perpendicular and Z. Box +X runs along the longer
-    horizontal side (``length >= width``), box +Z is world +Z, yaw is normalised to (-90, 90]
-    degrees. An upright box (not trimesh's free minimum-volume box) is used because ScanNet
-    furniture stands on the floor and grounding answers carry one heading about the vertical.
-    """
-    P = np.asarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] == 0:
-        raise ValueError(f"points must be [N>0, 3], got {P.shape}")
-    xy = P[:, :2] - P[:, :2].mean(axis=0)
-    cov = xy.T @ xy / max(len(P), 1)
-    w, V = np.linalg.eigh(cov)
-    e1 = V[:, 1] if w[1] > 0 else np.array([1.0, 0.0])
-    yaw = float(np.arctan2(e1[1], e1[0]))
-    for _ in range(2):
-        c, s = np.cos(yaw), np.sin(yaw)
-        u = xy @ np.array([c, s])
-        v = xy @ np.array([-s, c])
-        lu, lv = u.max() - u.min(), v.max() - v.min()
-        if lu >= lv:
-            break
-        yaw += np.pi / 2
-    if yaw > np.pi / 2:
-        yaw -= np.pi
-    elif yaw <= -np.pi / 2:
-        yaw += np.pi
-    c, s = np.cos(yaw), np.sin(yaw)
-    u = xy @ np.array([c, s])
-    v = xy @ np.array([-s, c])
-    mid_u, mid_v = (u.max() + u.min()) / 2, (v.max() + v.min()) / 2
-    center_xy = P[:, :2].mean(axis=0) + mid_u * np.array([c, s]) + mid_v * np.array([-s, c])
-    z0, z1 = P[:, 2].min(), P[:, 2].max()
-    return OrientedBox(np.array([center_xy[0], center_xy[1], (z0 + z1) / 2]), yaw_matrix(yaw),
-                       np.array([u.max() - u.min(), v.max() - v.min(), z1 - z0]))
-
-
-@dataclass
 class ScanNetInstance:
     """One annotated instance (a segGroup of ``<scene>.aggregation.json``).
 
@@ -461,13 +396,20 @@ class ScanNetInstance:
 
     @cached_property
     def obb_ann(self) -> OrientedBox:
-        """Upright oriented box in the annotation frame (:func:`upright_oriented_box` of ``A @ v``)."""
+        """Tight gravity-upright box in the annotation frame (:func:`upright_oriented_box` of ``A @ v``):
+        footprint = minimum-area rectangle of the vertices' XY, height = vertical extent."""
         return upright_oriented_box(self.vertices_ann)
 
     @cached_property
     def obb_raw(self) -> OrientedBox:
         """``obb_ann`` expressed in the raw scan frame: ``T_raw_from_box = A^-1 T_ann_from_box``."""
         return self.obb_ann.transformed(invert_T(self._A()))
+
+    @cached_property
+    def aabb_raw(self) -> OrientedBox:
+        """The annotation-frame axis-aligned box (:attr:`aabb_ann`) expressed in the raw scan frame."""
+        bb = self.aabb_ann
+        return OrientedBox(bb["center"], np.eye(3), bb["size"]).transformed(invert_T(self._A()))
 
 
 def read_instances(scene_dir: str | Path, scene: str, axis_alignment: np.ndarray | None,

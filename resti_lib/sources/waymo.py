@@ -15,6 +15,9 @@ Frames and conventions
   ``T_world_from_box = world_from_vehicle(frame) @ [yaw(heading) | center]``.
 - Segment time ``t = (micros - first_micros) / 1e6`` with ``first_micros`` the first
   ``vehicle_pose`` frame of the segment.
+- ``key.camera_name`` is the CameraName enum, stored as an integer (int8) in some components and as
+  its name (``FRONT``, ``FRONT_LEFT`` ...; the official ``camera_hkp`` test file) in others: every
+  reader accepts both (:func:`camera_numbers`).
 """
 
 from __future__ import annotations
@@ -43,8 +46,10 @@ __all__ = [
     "VEHICLE_POSE",
     "WaymoSegment",
     "camera_number",
+    "camera_numbers",
     "read_camera_calibration",
     "read_camera_image_poses",
+    "read_camera_numbers",
     "read_columns",
     "read_lidar_boxes",
     "read_vehicle_pose",
@@ -97,6 +102,50 @@ def camera_number(camera: int | str) -> int:
     if n not in CAMERA_NAMES:
         raise InputError(f"unknown Waymo camera number {n} (1-5)", field="camera")
     return n
+
+
+def camera_numbers(table: pa.Table, path: str | Path, column: str = KEY_CAMERA) -> np.ndarray:
+    """The camera column as CameraName numbers (1..5) ``[N]`` int64, stored as integers or as names.
+
+    Integer columns (int8 in the v2 schema) must hold 1..5; text columns the names ``FRONT``,
+    ``FRONT_LEFT``, ``FRONT_RIGHT``, ``SIDE_LEFT``, ``SIDE_RIGHT`` (any case; digit strings also).
+
+    Raises
+    ------
+    InputError
+        Naming the file, the first bad row and the column: a null, a number or name that is no
+        camera, or a column of another type.
+    """
+    arr = table.column(column).combine_chunks()
+    if pa.types.is_dictionary(arr.type):
+        arr = arr.cast(arr.type.value_type)
+    if arr.null_count:
+        i = int(np.flatnonzero(np.asarray(arr.is_null().to_numpy(zero_copy_only=False)))[0])
+        raise InputError("camera name is missing (null)", file=path, row=i, field=column)
+    if pa.types.is_integer(arr.type):
+        out = np.asarray(arr.to_numpy(zero_copy_only=False)).astype(np.int64)
+        bad = ~np.isin(out, list(CAMERA_NAMES))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"camera name {int(out[i])} is not a camera (1-5: "
+                             f"{', '.join(CAMERA_NAMES.values())})", file=path, row=i, field=column)
+        return out
+    if pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type):
+        vals = np.asarray(arr.to_numpy(zero_copy_only=False)).astype(str)
+        uniq, inv = np.unique(vals, return_inverse=True)
+        names = {v: k for k, v in CAMERA_NAMES.items()}
+        nums = []
+        for j, u in enumerate(uniq.tolist()):
+            key = u.strip().upper()
+            n = int(key) if key.isdigit() else names.get(key)
+            if n not in CAMERA_NAMES:
+                i = int(np.argmax(inv == j))
+                raise InputError(f"camera name {u!r} is not a camera ({', '.join(CAMERA_NAMES.values())} or 1-5)",
+                                 file=path, row=i, field=column)
+            nums.append(n)
+        return np.asarray(nums, dtype=np.int64)[inv.reshape(-1)]
+    raise InputError(f"camera name column has type {arr.type}: expected an integer (int8) or a name (string)",
+                     file=path, field=column)
 
 
 def read_columns(path: str | Path, required: list[str], optional: list[str] = ()) -> pa.Table:
@@ -195,7 +244,7 @@ def read_camera_calibration(path: str | Path, segment: str | None = None) -> dic
     req = [KEY_SEGMENT, KEY_CAMERA, CAL_EXTRINSIC, *CAL_INTRINSIC.values(), CAL_WIDTH, CAL_HEIGHT]
     tab = read_columns(path, req)
     keep = _segment_rows(tab, segment, path)
-    cams = _int_col(tab, KEY_CAMERA)
+    cams = camera_numbers(tab, path)
     E = _transforms(tab, CAL_EXTRINSIC, path)
     out: dict[int, dict] = {}
     cols = {k: np.asarray(tab.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
@@ -226,7 +275,7 @@ def read_camera_image_poses(path: str | Path, camera: int | str, segment: str | 
     path = Path(path)
     cam = camera_number(camera)
     tab = read_columns(path, [KEY_SEGMENT, KEY_MICROS, KEY_CAMERA, IMG_POSE, IMG_POSE_TIMESTAMP])
-    keep = _segment_rows(tab, segment, path) & (_int_col(tab, KEY_CAMERA) == cam)
+    keep = _segment_rows(tab, segment, path) & (camera_numbers(tab, path) == cam)
     if not keep.any():
         raise InputError(f"no image rows for camera {cam}", file=path, field=KEY_CAMERA)
     micros = _int_col(tab, KEY_MICROS).astype(np.int64)[keep]
@@ -234,6 +283,16 @@ def read_camera_image_poses(path: str | Path, camera: int | str, segment: str | 
     T = _transforms(tab, IMG_POSE, path)[keep]
     order = np.argsort(ts, kind="stable")
     return micros[order], ts[order], T[order]
+
+
+def read_camera_numbers(path: str | Path, segment: str | None = None) -> np.ndarray:
+    """The ``key.camera_name`` column of any camera component (``camera_image``, ``camera_calibration``,
+    ``camera_box``, ``camera_hkp`` ...) as CameraName numbers ``[N]`` (rows of ``segment`` when given);
+    names for them: :data:`CAMERA_NAMES`."""
+    path = Path(path)
+    tab = read_columns(path, [KEY_SEGMENT, KEY_CAMERA])
+    keep = _segment_rows(tab, segment, path)
+    return camera_numbers(tab, path)[keep]
 
 
 def read_lidar_boxes(path: str | Path, segment: str | None = None):

@@ -24,7 +24,6 @@ import hashlib
 import io
 import json
 import math
-import shutil
 import time
 from collections import Counter
 from pathlib import Path
@@ -33,13 +32,15 @@ import pyarrow as pa
 
 from .. import paths
 from ..defects import DEFECTS
+from ..errors import InputError
+from ..publish import publishing
 from . import legacy as _legacy
 from . import omni6d as _omni6d
 from . import scannet as _scannet
 from . import waymo as _waymo
 from .common import dumps, stable_seed, write_json, write_parquet
 
-GENERATOR_VERSION = "1.0.0"
+GENERATOR_VERSION = "1.1.0"
 
 LEGACY_COLUMNS = (
     "Video",
@@ -94,7 +95,8 @@ LEGACY_TASK_COUNTS = {
     "Trajectory Description": 78,
 }
 _SOURCE_ORDER = ("ScanNet", "Waymo", "Omni6DPose")
-_OWNED = ("scannet", "waymo", "omni6d", "legacy", "manifest.jsonl", "world.json")
+#: Largest ``scale``: 1,000 copies are about 2.1 million legacy rows (the 100x benchmark takes ~10 min).
+MAX_SCALE = 1000
 
 
 # ================================================================================ the pool
@@ -318,7 +320,7 @@ def generate(
     *,
     seed: int = 0,
     scale: int | None = None,
-    omni6d_camera_convention: str = "world_from_camera",
+    omni6d_camera_convention: str = "identity",
     resti_v5_dir: str | Path | None = None,
 ) -> dict:
     """Generate the mini-world and its legacy benchmark.
@@ -326,16 +328,20 @@ def generate(
     Parameters
     ----------
     out_dir : path
-        Output folder; the generator's own entries in it (``scannet/``, ``waymo/``, ``omni6d/``,
-        ``legacy/``, ``manifest.jsonl``, ``world.json``) are replaced, nothing else is touched.
+        Output folder: absent, empty, or a mini-world written before. The new world is built in a
+        staging folder beside it and swapped in whole when complete (:mod:`resti_lib.publish`), so an
+        interrupted generation leaves the previous world (or nothing), never half a world, and a
+        folder holding anything else is refused (:class:`~resti_lib.errors.OutputError`).
     seed : int
         World seed; equal seeds give byte-identical files.
     scale : int, optional
-        ``None``: the small default world. ``N >= 1``: N copies of the full legacy structure
+        ``None``: the small default world. ``1 <= N <= MAX_SCALE``: N copies of the full legacy structure
         (2,064 rows each) taken from the ReSTI v5 Legacy Row Keys (fallback: per-task counts), over
         the same bounded pool of sequences.
-    omni6d_camera_convention : {"world_from_camera", "camera_from_world"}
-        Direction of the camera pose written in ROPE meta files (recorded in world.json).
+    omni6d_camera_convention : {"identity", "world_from_camera", "camera_from_world"}
+        How ROPE meta files store the camera pose (recorded in world.json). ``identity`` (default):
+        the real ROPE way, identity camera pose and zero world translations (the motion is in the
+        objects' camera-frame poses only); the others: a SOPE-style stored pose carrying the motion.
     resti_v5_dir : path, optional
         Where to find ``resti.jsonl``/``excluded.jsonl`` for ``scale`` (default: shared data).
 
@@ -345,19 +351,44 @@ def generate(
         Summary: paths, counts (rows per task/source, defects, verdicts), files, bytes, seconds.
     """
     if omni6d_camera_convention not in _omni6d.CONVENTIONS:
-        raise ValueError(f"omni6d_camera_convention must be one of {_omni6d.CONVENTIONS}")
-    if scale is not None and (int(scale) != scale or scale < 1):
-        raise ValueError(f"scale must be a positive integer or None, got {scale!r}")
+        raise InputError(f"must be one of {_omni6d.CONVENTIONS}, got {omni6d_camera_convention!r}",
+                         field="omni6d_camera_convention")
+    check_scale(scale)
     t_start = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for name in _OWNED:
-        p = out / name
-        if p.is_dir():
-            shutil.rmtree(p)
-        elif p.exists():
-            p.unlink()
+    with publishing(out, kind="world", inputs=[resti_v5_dir], what="mini-world folder", wait=True) as stage:
+        counts, world = _generate_into(stage, seed=seed, scale=scale,
+                                       omni6d_camera_convention=omni6d_camera_convention,
+                                       resti_v5_dir=resti_v5_dir)
+    n_files, n_bytes = _dir_size(out)
+    return {
+        "out_dir": str(out),
+        "seed": seed,
+        "scale": scale,
+        "row_structure": world["row_structure"],
+        "qa_parquet": str(out / "legacy" / "qa.parquet"),
+        "manifest": str(out / "manifest.jsonl"),
+        "world_json": str(out / "world.json"),
+        "counts": counts,
+        "files": n_files,
+        "bytes": n_bytes,
+        "seconds": round(time.perf_counter() - t_start, 3),
+        "sequences": world["n_sequences"],
+    }
 
+
+def check_scale(scale) -> None:
+    """``scale`` is ``None`` or an integer in ``1 .. MAX_SCALE`` (:class:`InputError` otherwise)."""
+    if scale is None:
+        return
+    if isinstance(scale, bool) or not isinstance(scale, int) or not 1 <= scale <= MAX_SCALE:
+        raise InputError(f"scale must be a whole number from 1 to {MAX_SCALE} (copies of the 2,064-row "
+                         f"structure), got {scale!r}", field="scale")
+
+
+def _generate_into(out: Path, *, seed: int, scale: int | None, omni6d_camera_convention: str,
+                   resti_v5_dir) -> tuple[dict, dict]:
+    """Write the whole world into ``out`` (a staging folder); ``world.json`` is written last."""
     world, segs, ropes = _build_pool(seed)
     _write_sources(out, world, segs, ropes, seed, omni6d_camera_convention)
     if scale is None:
@@ -384,6 +415,16 @@ def generate(
             "scannet_pose": "T_raw<-cam (camera-to-world), float32 in .sens; invalid frames all -inf",
             "scannet_axis_alignment": "T_ann<-raw, rotation about +Z plus translation",
             "omni6d_camera_pose": omni6d_camera_convention,
+            "omni6d_frames": "written the real ROPE way: camera pose identity, world_translation zero, "
+            "object poses T_cam<-object in OpenCV axes; the camera motion is only in the static objects' poses"
+            if omni6d_camera_convention == "identity" else "SOPE-style: the stored camera pose and the objects' "
+            "world poses carry the motion",
+            "omni6d_moving_object": f"scene {_omni6d.MOVING_SCENE}: its last object is re-placed during the video "
+            "(world.json sequences.omni6d[].moving_object)",
+            "scannet_boxes": "instances are upright boxes (some turned about +Z in the annotation frame); the "
+            "truth box is the tight upright box of the written vertices (footprint = minimum-area rectangle, "
+            "length >= width, yaw in (-90, 90]); legacy ScanNet dimensions, distances and grounding sizes use "
+            "the axis-aligned box in the annotation frame (extents along ann x, y, z)",
             "omni6d_object_pose": "T_cam<-object in OpenCV axes; box centred at the object origin, "
             "sides = scale * dimensions along object x, y, z",
             "waymo_time": "t = (micros - first vehicle_pose micros) / 1e6; questions use the nearest frame",
@@ -399,25 +440,9 @@ def generate(
         },
     }
     write_json(out / "world.json", world_info, indent=1)
-    n_files, n_bytes = _dir_size(out)
-    return {
-        "out_dir": str(out),
-        "seed": seed,
-        "scale": scale,
-        "row_structure": origin,
-        "qa_parquet": str(out / "legacy" / "qa.parquet"),
-        "manifest": str(out / "manifest.jsonl"),
-        "world_json": str(out / "world.json"),
-        "counts": counts,
-        "files": n_files,
-        "bytes": n_bytes,
-        "seconds": round(time.perf_counter() - t_start, 3),
-        "sequences": {
-            "ScanNet": len(world.scannet),
-            "Waymo": len(world.waymo),
-            "Omni6DPose": len(world.omni),
-        },
-    }
+    return counts, {"row_structure": origin, "n_sequences": {"ScanNet": len(world.scannet),
+                                                             "Waymo": len(world.waymo),
+                                                             "Omni6DPose": len(world.omni)}}
 
 
-__all__ = ["DEFAULT_COUNTS", "GENERATOR_VERSION", "LEGACY_COLUMNS", "generate"]
+__all__ = ["DEFAULT_COUNTS", "GENERATOR_VERSION", "LEGACY_COLUMNS", "MAX_SCALE", "check_scale", "generate"]

@@ -25,9 +25,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--omni6d-camera-convention",
-        default="world_from_camera",
-        choices=["world_from_camera", "camera_from_world"],
-        help="direction of the camera pose written in ROPE meta files",
+        default="identity",
+        choices=["identity", "world_from_camera", "camera_from_world"],
+        help="camera pose written in ROPE meta files: identity (the real way) or a SOPE-style pose",
     )
     args = ap.parse_args(argv)
     summary = generate(

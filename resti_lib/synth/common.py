@@ -220,6 +220,54 @@ def point_box_distance(
     return float(np.linalg.norm(excess))
 
 
+def tight_upright_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(center, R, lwh)`` of the tight gravity-upright box of a box instance's vertices ``(N, 3)``
+    in a +Z-up frame (its footprint: four distinct corners).
+
+    The generator's own computation (not the audit's): every direction joining two footprint
+    points is tried (the minimum-area rectangle has a side along a hull side, which joins two
+    points) and the one whose XY-projection rectangle has the least area wins; the footprint's
+    four sides (corners ordered by angle about their centroid) that run within 1e-4 rad of it,
+    modulo 90 degrees, give the yaw as their length-weighted mean direction (so float32 noise in
+    the corners cannot pick one side over another). Box +X runs along the longer side, its yaw in
+    (-90, 90] degrees; height = Z extent.
+    """
+    P = np.asarray(points, float)
+    xy = P[:, :2]
+    i, j = np.triu_indices(len(xy), 1)
+    e = xy[j] - xy[i]
+    n = np.linalg.norm(e, axis=1)
+    e = e[n > 1e-12] / n[n > 1e-12, None]
+    u = e @ xy.T
+    v = np.stack([-e[:, 1], e[:, 0]], axis=1) @ xy.T
+    area = (u.max(1) - u.min(1)) * (v.max(1) - v.min(1))
+    yaw = float(np.arctan2(*e[int(np.argmin(area))][::-1]))
+    corners = np.unique(xy, axis=0)
+    mid = corners.mean(axis=0)
+    corners = corners[np.argsort(np.arctan2(corners[:, 1] - mid[1], corners[:, 0] - mid[0]))]
+    sides = np.roll(corners, -1, axis=0) - corners
+    lens = np.linalg.norm(sides, axis=1)
+    off = (np.arctan2(sides[:, 1], sides[:, 0]) - yaw + math.pi / 4) % (math.pi / 2) - math.pi / 4
+    par = np.abs(off) <= 1e-4
+    if par.any():
+        yaw += float(np.sum(lens[par] * off[par]) / np.sum(lens[par]))
+    ex = np.array([np.cos(yaw), np.sin(yaw)])
+    ey = np.array([-ex[1], ex[0]])
+    if np.ptp(xy @ ex) < np.ptp(xy @ ey):
+        yaw += math.pi / 2
+    yaw = math.atan2(math.sin(yaw), math.cos(yaw))
+    if yaw > math.pi / 2:
+        yaw -= math.pi
+    elif yaw <= -math.pi / 2:
+        yaw += math.pi
+    R = rot_z(yaw)
+    ex, ey = R[:2, 0], R[:2, 1]
+    a, b = xy @ ex, xy @ ey
+    cxy = (a.max() + a.min()) / 2 * ex + (b.max() + b.min()) / 2 * ey
+    z0, z1 = P[:, 2].min(), P[:, 2].max()
+    return np.array([cxy[0], cxy[1], (z0 + z1) / 2]), R, np.array([np.ptp(a), np.ptp(b), z1 - z0])
+
+
 def aabb_distance(min_a: np.ndarray, max_a: np.ndarray, min_b: np.ndarray, max_b: np.ndarray) -> float:
     """Minimum distance between two axis-aligned boxes (0 when they touch or overlap)."""
     gap = np.maximum(0.0, np.maximum(np.asarray(min_a) - max_b, np.asarray(min_b) - max_a))

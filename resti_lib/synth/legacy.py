@@ -762,7 +762,14 @@ class Builder:
         else:
             disp, path = self._camera_motion(slot, s, k0, k1)
             value = disp if op == "displacement" else path
-            if op == "displacement":
+            if op == "displacement" and slot.source == "ScanNet" and slot.variant != "zero":
+                # the ScanNet construction asked "how far has the camera traveled" and printed the
+                # endpoint displacement: the audit must find this reading per source, not assume a path
+                q = f"How far has the camera traveled from {_t(t0)}s to {_t(t1)}s?"
+                defects += ["statistic_unnamed", "distance_traveled_is_displacement"]
+                evidence = {"reading": "displacement (how far has the camera traveled, built as |p(t1) - p(t0)|)",
+                            "path_length_m": round(path, 6)}
+            elif op == "displacement":
                 q = f"What is the displacement of the camera from {_t(t0)}s to {_t(t1)}s?"
             else:
                 q = f"What is the total distance traveled by the camera from {_t(t0)}s to {_t(t1)}s?"
@@ -989,17 +996,23 @@ class Builder:
             inst, f = _choose(rng, opts)
             t = f / s.fps
             desc = inst.description
-            legacy = s.distance_to_camera(inst, f)
+            legacy = s.legacy_distance_to_camera(inst, f)
             entity = {"kind": "object", "id": inst.object_id, "label": inst.label}
             value = None
             defects.insert(0, "not_visible")
             reasons.append("not_visible_at_frame")
             evidence = {"all_corners_behind_camera": True, "frame": f}
         else:
-            value, desc, entity, t, t_end, kind, comp = self._dim_normal(slot, s, rng, kind, comp)
-            legacy = value
+            value, legacy0, desc, entity, t, t_end, kind, comp = self._dim_normal(slot, s, rng, kind, comp)
+            legacy = legacy0
+            if abs(legacy0 - value) > 1e-6:  # the axis-aligned box (legacy) and the tight box differ
+                evidence = {"legacy_box": "axis-aligned box in the annotation frame",
+                            "axis_aligned_value_m": legacy0, "tight_value_m": value}
             if v == "mismatch":
-                legacy = _perturb(rng, value * scale, _FLOOR[(scen, unit)]) / scale
+                for _ in range(50):  # clearly different from both conventions' values
+                    legacy = _perturb(rng, legacy0 * scale, _FLOOR[(scen, unit)]) / scale
+                    if abs(legacy - value) * scale >= 3 * _FLOOR[(scen, unit)]:
+                        break
                 defects.append("value_mismatch")
         d = _strip_article(desc)
         if kind == "dimension":
@@ -1017,8 +1030,10 @@ class Builder:
             op = {"operator": "box_distance"}
         if reasons:
             verdict = "excluded"
-        else:
-            verdict = "corrected" if v == "mismatch" else "retained"
+        elif v == "mismatch":
+            verdict = "corrected"
+        else:  # legacy value right under its own box convention only: the contract changes
+            verdict = "re-contracted" if evidence.get("legacy_box") else "retained"
         times = [t] if t_end is None else [t, t_end]
         contract = {"entity": entity, "times": times, "unit": unit, "frame": "object_box", **op}
         prompt = f"Object description: {desc}." if kind != "min_distance" else f"Objects: {desc}."
@@ -1041,10 +1056,15 @@ class Builder:
         )
 
     def _dim_normal(self, slot: Slot, s, rng: np.random.Generator, kind: str, comp: str):
-        """A normal Dimensional row: (value, description, entity, t, t_end, kind, component).
+        """A normal Dimensional row: (value, legacy value, description, entity, t, t_end, kind, component).
 
         Length and width are asked only of objects whose box-local x edge is clearly the longer
         horizontal edge, so "length = box x" and "length = longer side" give the same answer.
+        ScanNet: the value is the tight upright box's, the legacy value the annotation-frame
+        axis-aligned box's (length / width = extents along ann x / y); they are equal (to float
+        noise) for objects along the room axes and at least 3 cm apart otherwise (a turned object
+        whose two values come closer is asked its height, or at another frame); box distances are
+        asked between objects along the room axes only.
         """
 
         def fits(size) -> bool:
@@ -1052,21 +1072,34 @@ class Builder:
 
         if slot.source == "ScanNet":
             if kind == "min_distance":
-                uniq = _sn_unique(s)
+                uniq = [i for i in _sn_unique(s) if not i.turned]
                 a, b = (uniq[i] for i in rng.choice(len(uniq), size=2, replace=False))
                 f = _sn_visible_frame(s, a, rng)
                 desc = f"{_strip_article(a.description)} and the {_strip_article(b.description)}"
                 ent = {"kind": "object_pair", "ids": [a.object_id, b.object_id], "labels": [a.label, b.label]}
-                return s.box_distance(a, b), desc, ent, f / s.fps, None, kind, comp
+                d = s.box_distance(a, b)
+                return d, d, desc, ent, f / s.fps, None, kind, comp
             pool = [i for i in _sn_unique(s) if fits(i.size)]
             if not pool:
                 comp, pool = "height", _sn_unique(s)
             inst = _choose(rng, pool)
-            f = _sn_visible_frame(s, inst, rng)
             ci = ("length", "width", "height").index(comp)
-            value = float(inst.size[ci]) if kind == "dimension" else s.distance_to_camera(inst, f)
+            if kind == "dimension":
+                f = _sn_visible_frame(s, inst, rng)
+                value, legacy = float(inst.box_lwh[ci]), float(inst.size[ci])
+                if 1e-6 < abs(value - legacy) < 0.03:
+                    comp, value, legacy = "height", float(inst.box_lwh[2]), float(inst.size[2])
+            else:
+                idx = s.instances.index(inst)
+                fr = _sn_frames(s)
+                ok = [int(k) for k in fr[s.visible()[idx, fr]]
+                      if not (1e-6 < abs(s.distance_to_camera(inst, k) - s.legacy_distance_to_camera(inst, k)) < 0.03)]
+                if not ok:
+                    raise NoCandidate("no frame separates the two box conventions")
+                f = int(_choose(rng, ok))
+                value, legacy = s.distance_to_camera(inst, f), s.legacy_distance_to_camera(inst, f)
             ent = {"kind": "object", "id": inst.object_id, "label": inst.label}
-            return value, inst.description, ent, f / s.fps, None, kind, comp
+            return value, legacy, inst.description, ent, f / s.fps, None, kind, comp
         if slot.source == "Waymo":
             # the referent is the only object of its type in view at the asked frame: a dimension
             # row asks at t rounded to 0.1 s, which must fall on the same frame
@@ -1089,9 +1122,11 @@ class Builder:
                 ks = np.flatnonzero(vis[i])
                 run = ks[(ks >= k) & (ks <= k + 40)]
                 t0, t1 = round(float(s.t[k]), 1), round(float(s.t[run[-1]]), 1)
-                return float(o.size[ci]), o.description, ent, t0, t1, kind, comp
+                return float(o.size[ci]), float(o.size[ci]), o.description, ent, t0, t1, kind, comp
+            d = s.distance_to_camera(o, k, slot.camera)
             return (
-                s.distance_to_camera(o, k, slot.camera),
+                d,
+                d,
                 o.description,
                 ent,
                 float(s.t[k]),
@@ -1110,8 +1145,9 @@ class Builder:
         ci = ("length", "width", "height").index(comp)
         ent = {"kind": "object", "id": o.oid, "label": o.class_name}
         if kind == "dimension":
-            return float(o.side[ci]), o.description, ent, 0.0, None, kind, comp
-        return s.distance_to_camera(o, k), o.description, ent, k / s.fps, None, kind, comp
+            return float(o.side[ci]), float(o.side[ci]), o.description, ent, 0.0, None, kind, comp
+        d = s.distance_to_camera(o, k)
+        return d, d, o.description, ent, k / s.fps, None, kind, comp
 
     # ---------------------------------------------------------------------- spatial relation
     def relation(self, slot: Slot, rng: np.random.Generator) -> Draft:

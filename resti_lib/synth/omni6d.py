@@ -1,12 +1,21 @@
 """Omni6DPose ROPE scenes in the exact metadata layout (``../shared/formats/omni6dpose.md``).
 
-A scene is a table (world frame: table top at z = 0, +Z up) with static objects, filmed by a
-hand-held camera at 30 FPS that orbits the table. Every frame gets a ``<frame>_meta.json`` with
-all fields of ``cutoop.image_meta.ImageMetaData`` (object poses in the OpenCV camera frame of that
-frame, world poses, camera pose and intrinsics); ``Meta/real_obj_meta.json`` holds the object meta
-(``cutoop.obj_meta.ObjectMetaData``). The direction of the written camera pose
-(``world_from_camera`` or ``camera_from_world``) is a generator option recorded in world.json;
-readers must verify it against the object poses.
+A scene is a table (world frame: table top at z = 0, +Z up) with objects, filmed by a hand-held
+camera at 30 FPS that orbits the table. In one default scene (``MOVING_SCENE``) one object is
+picked up and put down elsewhere during the video (slid and turned on the table: a re-placed
+object); every other object is static. Every frame gets a ``<frame>_meta.json`` with all fields of
+``cutoop.image_meta.ImageMetaData``; ``Meta/real_obj_meta.json`` holds the object meta
+(``cutoop.obj_meta.ObjectMetaData``, objects stand upright: ``upAxis`` z).
+
+Frames are written the real way by default (``camera_pose="identity"``, as real ROPE frames,
+``../shared/data/real_samples/``): the camera pose is identity, every object's
+``world_translation`` is zero and its world rotation identity; the object poses
+(``quaternion_wxyz``, ``translation``) are ``T_cam<-object`` in the OpenCV camera of the frame, so
+the camera motion can only be recovered from the static objects. ``world_from_camera`` /
+``camera_from_world`` write a SOPE-style stored camera pose that carries the motion (and the
+objects' world poses) instead, for readers that verify a stored pose against the objects.
+The truth is the world model (camera ``T_world<-cam`` and object poses per frame), never a reading
+of the written files.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from .common import (
     quat_wxyz_from_matrix,
     rot_z,
     round_list,
+    smoothstep,
     stable_seed,
     write_json,
 )
@@ -33,7 +43,8 @@ from .common import (
 FPS = 30.0
 IMAGE_SIZE = (1280, 720)
 K_ROPE = (915.0556030273438, 914.1288452148438, 641.2314453125, 363.4847412109375)
-CONVENTIONS = ("world_from_camera", "camera_from_world")
+#: how the camera pose is written: "identity" (real ROPE) or a SOPE-style pose carrying the motion
+CONVENTIONS = ("identity", "world_from_camera", "camera_from_world")
 
 # class -> (label, object-space dimensions (x, y, z) before scale, descriptions, group phrases)
 _CLASSES: dict[str, dict] = {
@@ -74,6 +85,8 @@ ABSENT_CLASSES = {"toy_train": "A wooden toy train with red wheels", "camera": "
 
 #: Default scenes: (scene id, duration s, stacked pair present)
 DEFAULT_SCENES = [("000900", 20.0, True), ("000901", 18.0, False), ("000902", 22.0, True)]
+#: The default scene in which one object is re-placed during the video (its last object).
+MOVING_SCENE = "000901"
 
 
 @dataclass
@@ -86,13 +99,23 @@ class RopeObject:
     description: str
     scale: np.ndarray  # (3,)
     dims: np.ndarray  # object-space dimensions (3,)
-    T_world: np.ndarray  # (4, 4) T_world<-object (box centred at the object origin)
+    T_world: np.ndarray  # (4, 4) T_world<-object at frame 0 (box centred at the object origin)
     on_top_of: int | None = None  # mask id of the object it stands on
+    track: np.ndarray | None = None  # (N, 4, 4) T_world<-object per frame when the object moves
+    moved: tuple[int, int] | None = None  # first and last frame of the motion
 
     @property
     def side(self) -> np.ndarray:
         """Box side lengths in metres (``scale * dimensions`` = ``bbox_side_len``)."""
         return self.scale * self.dims
+
+    def pose(self, k: int) -> np.ndarray:
+        """``T_world<-object`` at frame ``k``."""
+        return self.T_world if self.track is None else self.track[k]
+
+    def poses(self, n: int) -> np.ndarray:
+        """``T_world<-object`` at every frame ``(n, 4, 4)``."""
+        return np.broadcast_to(self.T_world, (n, 4, 4)) if self.track is None else self.track
 
 
 @dataclass
@@ -137,7 +160,12 @@ class RopeScene:
 
     def obj_in_cam(self, o: RopeObject, k: int) -> np.ndarray:
         """``T_cam<-object`` at frame ``k``."""
-        return inv_T(self.cam_world[k]) @ o.T_world
+        return inv_T(self.cam_world[k]) @ o.pose(k)
+
+    @property
+    def mover(self) -> RopeObject | None:
+        """The object that moves during the video, if any."""
+        return next((o for o in self.objects if o.track is not None), None)
 
     def visible(self) -> np.ndarray:
         """(objects, frames) bool: the object centre projects inside the image."""
@@ -145,7 +173,8 @@ class RopeScene:
             inv = inv_T(self.cam_world)
             out = np.zeros((len(self.objects), self.n_frames), bool)
             for i, o in enumerate(self.objects):
-                pc = np.einsum("nij,j->ni", inv[:, :3, :3], o.T_world[:3, 3]) + inv[:, :3, 3]
+                c = o.poses(self.n_frames)[:, :3, 3]
+                pc = np.einsum("nij,nj->ni", inv[:, :3, :3], c) + inv[:, :3, 3]
                 out[i] = in_view(K_ROPE, IMAGE_SIZE, pc, margin=0.0, min_depth=0.05)
             self._vis = out
         return self._vis
@@ -182,7 +211,8 @@ class RopeScene:
 
     def distance_to_camera(self, o: RopeObject, k: int) -> float:
         """Distance from the camera centre to the object box at frame ``k`` (m)."""
-        return point_box_distance(self.cam_world[k, :3, 3], o.T_world[:3, 3], o.side, o.T_world[:3, :3])
+        T = o.pose(k)
+        return point_box_distance(self.cam_world[k, :3, 3], T[:3, 3], o.side, T[:3, :3])
 
     def relation(self, a: int, b: int, k: int = 0) -> tuple[str | None, dict]:
         """Dominant relation of A relative to B seen from the camera at frame k.
@@ -193,7 +223,7 @@ class RopeScene:
         """
         A, B = self.obj(a), self.obj(b)
         inv = inv_T(self.cam_world[k])
-        d = (inv[:3, :3] @ A.T_world[:3, 3] + inv[:3, 3]) - (inv[:3, :3] @ B.T_world[:3, 3] + inv[:3, 3])
+        d = (inv[:3, :3] @ A.pose(k)[:3, 3] + inv[:3, 3]) - (inv[:3, :3] @ B.pose(k)[:3, 3] + inv[:3, 3])
         ev = {"dx": float(d[0]), "dy": float(d[1]), "dz": float(d[2])}
         if A.on_top_of == b:
             return "Directly above", ev
@@ -206,11 +236,22 @@ class RopeScene:
 
     def describe(self, convention: str) -> dict:
         """Ground truth for world.json."""
+        mv = self.mover
+        moving = None
+        if mv is not None:
+            a, b = mv.moved
+            d = mv.pose(b)[:3, 3] - mv.pose(a)[:3, 3]
+            moving = {"mask_id": mv.mask_id, "oid": mv.oid, "frames": [a, b],
+                      "displacement_m": round(float(np.linalg.norm(d)), 6),
+                      "yaw_change_deg": round(math.degrees(math.atan2(
+                          (mv.pose(a)[:3, :3].T @ mv.pose(b)[:3, :3])[1, 0],
+                          (mv.pose(a)[:3, :3].T @ mv.pose(b)[:3, :3])[0, 0])), 6)}
         return {
             "scene": self.name,
             "n_frames": self.n_frames,
             "fps": self.fps,
             "camera_pose_convention": convention,
+            "moving_object": moving,
             "tied_pair": list(self.tied_pair),
             "clear_pair": list(self.clear_pair),
             "objects": [
@@ -363,8 +404,36 @@ def _clear_position(
     return None
 
 
-def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeScene:
-    """Build one ROPE scene (world model only): camera orbit, then objects that fit the table."""
+def _move(rng: np.random.Generator, scene: RopeScene, o: RopeObject) -> bool:
+    """Re-place object ``o`` during the video: slid 12-20 cm and turned 20-40 degrees on the table
+    over 1.5-2.5 s (smoothstep), static before and after. False when no free spot is found."""
+    n = scene.n_frames
+    k0 = round(rng.uniform(0.3, 0.5) * n)
+    k1 = min(k0 + round(rng.uniform(1.5, 2.5) * FPS), n - 1)
+    rad = 0.5 * float(np.linalg.norm(o.side[:2]))
+    placed = [(q.T_world[:2, 3], 0.5 * float(np.linalg.norm(q.side[:2]))) for q in scene.objects
+              if q is not o and q.on_top_of is None]
+    for _ in range(200):
+        ang = rng.uniform(-math.pi, math.pi)
+        dist = rng.uniform(0.12, 0.20)
+        end = o.T_world[:2, 3] + dist * np.array([math.cos(ang), math.sin(ang)])
+        if _free(end, rad, placed):
+            break
+    else:
+        return False
+    dyaw = math.radians(rng.uniform(20, 40)) * rng.choice([-1, 1])
+    s = smoothstep((np.arange(n) - k0) / max(k1 - k0, 1))
+    track = np.repeat(o.T_world[None], n, axis=0)
+    for k in range(k0, n):
+        xy = o.T_world[:2, 3] + s[k] * (end - o.T_world[:2, 3])
+        track[k] = make_T(rot_z(s[k] * dyaw) @ o.T_world[:3, :3], [xy[0], xy[1], o.T_world[2, 3]])
+    o.track, o.moved = track, (k0, k1)
+    return True
+
+
+def build_scene(name: str, duration: float, stacked: bool, seed: int, moving: bool = False) -> RopeScene:
+    """Build one ROPE scene (world model only): camera orbit, then objects that fit the table;
+    ``moving``: the last object is re-placed during the video (:func:`_move`)."""
     rng = np.random.default_rng(seed)
     n = int(round(duration * FPS))
     cam = _camera(rng, n)
@@ -384,6 +453,8 @@ def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeSce
             clear_pair=(objs[2].mask_id, objs[0].mask_id),
         )
         rel, ev = scene.relation(*scene.clear_pair)
+        if moving and not _move(rng, scene, scene.objects[-1]):
+            continue
         if scene.visible()[:3, 0].all() and rel in ("Left", "Right") and abs(ev["dx"]) >= 3 * abs(ev["dz"]):
             return scene
     raise RuntimeError(f"cannot lay out the table of scene {name}")
@@ -393,7 +464,13 @@ def build_scene(name: str, duration: float, stacked: bool, seed: int) -> RopeSce
 
 
 def _meta_frame(s: RopeScene, k: int, convention: str, visible: np.ndarray) -> dict:
-    Tc = s.cam_world[k] if convention == "world_from_camera" else inv_T(s.cam_world[k])
+    """One frame's meta. ``identity``: the camera pose is identity and the world poses are zero /
+    identity (real ROPE); otherwise the stored camera pose and world poses carry the motion."""
+    real = convention == "identity"
+    if real:
+        Tc = np.eye(4)
+    else:
+        Tc = s.cam_world[k] if convention == "world_from_camera" else inv_T(s.cam_world[k])
     fx, fy, cx, cy = K_ROPE
     objects = {}
     for i, o in enumerate(s.objects):
@@ -415,8 +492,8 @@ def _meta_frame(s: RopeScene, k: int, convention: str, visible: np.ndarray) -> d
             "is_valid": True,
             "id": i + 1,
             "material": [],
-            "world_quaternion_wxyz": quat_wxyz_from_matrix(o.T_world[:3, :3]),
-            "world_translation": o.T_world[:3, 3].tolist(),
+            "world_quaternion_wxyz": [1.0, 0.0, 0.0, 0.0] if real else quat_wxyz_from_matrix(o.pose(k)[:3, :3]),
+            "world_translation": [0.0, 0.0, 0.0] if real else o.pose(k)[:3, 3].tolist(),
         }
     return {
         "objects": objects,
@@ -435,21 +512,21 @@ def _meta_frame(s: RopeScene, k: int, convention: str, visible: np.ndarray) -> d
             "background_image_path": "",
             "background_depth_path": "",
             "distances": [],
-            "kind": "real",
+            "kind": "" if real else "real",
         },
-        "scene_dataset": "ROPE",
+        "scene_dataset": "real" if real else "ROPE",
         "env_param": {},
         "face_up": True,
         "concentrated": False,
-        "comments": "",
+        "comments": "real scan video data" if real else "",
         "runtime_seed": -1,
         "baseline_dis": 0,
         "emitter_dist_l": 0,
     }
 
 
-def write_scene(s: RopeScene, root: Path, convention: str) -> None:
-    """Write ``ROPE/<scene>/<frame>_meta.json`` for every frame."""
+def write_scene(s: RopeScene, root: Path, convention: str = "identity") -> None:
+    """Write ``ROPE/<scene>/<frame>_meta.json`` for every frame (``convention``: :data:`CONVENTIONS`)."""
     if convention not in CONVENTIONS:
         raise ValueError(f"camera convention must be one of {CONVENTIONS}, got {convention!r}")
     d = root / "ROPE" / s.name
@@ -497,6 +574,6 @@ def write_object_meta(scenes: list[RopeScene], root: Path) -> None:
 def build_default(seed: int) -> list[RopeScene]:
     """The default ROPE scenes (six-digit ids from 000900)."""
     return [
-        build_scene(name, dur, stacked, stable_seed(seed, f"omni6d|{name}"))
+        build_scene(name, dur, stacked, stable_seed(seed, f"omni6d|{name}"), moving=name == MOVING_SCENE)
         for name, dur, stacked in DEFAULT_SCENES
     ]

@@ -1,13 +1,18 @@
 """ScanNet v2 scenes in the exact source layout (``../shared/formats/scannet.md``).
 
 Each scene is a rectangular room whose annotation frame (``ann``: axis-aligned, floor at z = 0) is
-chosen first. Objects are boxes aligned with the ann axes, the camera walks a smooth loop at
-walking speed and looks from object to object with some tilt and roll. The raw scan frame is
-``raw = A^-1 ann`` with ``A = axisAlignment`` a rotation about +Z plus a translation, so the mesh and
-the poses are written in raw coordinates while instance boxes are ann-frame boxes.
+chosen first. Objects are upright boxes along the walls, most aligned with the ann axes, some
+free-standing pieces of furniture (:data:`TURNABLE`) turned 15-35 degrees about +Z; the camera walks
+a smooth loop at walking speed and looks from object to object with some tilt and roll. The raw scan
+frame is ``raw = A^-1 ann`` with ``A = axisAlignment`` a rotation about +Z plus a translation, so the
+mesh and the poses are written in raw coordinates while instance boxes are ann-frame boxes.
 
 Truth is kept exactly as the files hold it: ``A`` as parsed back from its 6-decimal text, poses as
-float32 (the ``.sens`` precision), boxes as the ann AABB of ``A @ float32 mesh vertices``.
+float32 (the ``.sens`` precision), boxes computed from ``A @ float32 mesh vertices``. Two boxes per
+instance: the *tight* upright box (the truth: footprint = minimum-area rectangle, length >= width,
+:func:`.common.tight_upright_box`) and the *axis-aligned* box in the ann frame (``bmin``/``bmax``:
+the legacy construction's box, extents along ann x, y, z). They differ for turned instances (and
+name length / width differently for instances whose longer side runs along ann y).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from .common import (
     rot_z,
     round_list,
     smoothstep,
+    tight_upright_box,
     write_json,
 )
 
@@ -126,6 +132,11 @@ _LABELS: dict[str, dict] = {
         "desc": ["White dresser with six drawers"],
     },
 }
+#: Free-standing furniture that may stand turned about +Z (probability, turn range in degrees).
+TURNABLE = ("table", "desk", "sofa", "bed", "armchair", "dresser", "tv stand")
+TURN_PROBABILITY = 0.6
+TURN_DEG = (15.0, 35.0)
+
 #: Labels that never appear in a scene; used for descriptions with no source instance.
 ABSENT_LABELS = {
     "piano": "Black upright piano against the wall",
@@ -146,7 +157,12 @@ DEFAULT_SCENES = [
 
 @dataclass
 class Instance:
-    """One annotated instance (a segGroup): ann-frame AABB as the files define it."""
+    """One annotated instance (a segGroup): its ann-frame boxes as the files define them.
+
+    ``bmin``/``bmax``: the axis-aligned box of the ann-frame vertices (the legacy convention);
+    ``box_center``/``box_R``/``box_lwh``: the tight upright box (the truth); ``turn_deg``: how far
+    the object stands turned from the room axes (0 for most).
+    """
 
     object_id: int
     label: str
@@ -155,16 +171,25 @@ class Instance:
     bmax: np.ndarray
     segments: list[int] = field(default_factory=list)
     raw_vertices: np.ndarray | None = None  # (8, 3) float32-exact box corners in the raw frame
+    turn_deg: float = 0.0
+    box_center: np.ndarray | None = None  # tight box centre (ann)
+    box_R: np.ndarray | None = None  # R_ann<-box of the tight box
+    box_lwh: np.ndarray | None = None  # tight box edge lengths (length >= width, height)
 
     @property
     def center(self) -> np.ndarray:
-        """Box centre (ann frame)."""
+        """Axis-aligned box centre (ann frame); the tight box has the same centre (a box's vertices)."""
         return (self.bmin + self.bmax) / 2.0
 
     @property
     def size(self) -> np.ndarray:
-        """Box edge lengths along ann x, y, z."""
+        """Axis-aligned box edge lengths along ann x, y, z (the legacy convention)."""
         return self.bmax - self.bmin
+
+    @property
+    def turned(self) -> bool:
+        """True when the object stands turned from the room axes."""
+        return self.turn_deg != 0.0
 
 
 @dataclass
@@ -270,13 +295,13 @@ class ScanNetScene:
 
     # ------------------------------------------------------------------ truth (own numpy)
     def box_in_camera(self, inst: Instance, f: int) -> dict:
-        """Oriented box in the OpenCV camera frame: ``T_cam<-box = P^-1 A^-1 T_ann<-box``."""
+        """The tight oriented box in the OpenCV camera frame: ``T_cam<-box = P^-1 A^-1 T_ann<-box``."""
         T = np.linalg.inv(self.poses[f]) @ np.linalg.inv(self.A)
-        R = T[:3, :3]
-        c = R @ inst.center + T[:3, 3]
+        R = T[:3, :3] @ inst.box_R
+        c = T[:3, :3] @ inst.box_center + T[:3, 3]
         return {
             "C_central_point": c.tolist(),
-            "C_lwh": inst.size.tolist(),
+            "C_lwh": inst.box_lwh.tolist(),
             "C_rotation_camera_from_box": R.tolist(),
             "C_heading": math.degrees(math.atan2(R[1, 0], R[0, 0])),
         }
@@ -316,11 +341,18 @@ class ScanNetScene:
         return math.degrees(math.atan2(a[1] * b[0] - a[0] * b[1], a[0] * b[0] + a[1] * b[1]))
 
     def distance_to_camera(self, inst: Instance, f: int) -> float:
-        """Distance from the camera centre to the instance box at frame ``f`` (m)."""
+        """Distance from the camera centre to the instance's tight box at frame ``f`` (m)."""
+        return point_box_distance(self.cam_center_ann(f), inst.box_center, inst.box_lwh, inst.box_R)
+
+    def legacy_distance_to_camera(self, inst: Instance, f: int) -> float:
+        """The legacy distance: camera centre to the axis-aligned ann box at frame ``f`` (m)."""
         return point_box_distance(self.cam_center_ann(f), inst.center, inst.size)
 
     def box_distance(self, a: Instance, b: Instance) -> float:
-        """Minimum distance between two instance boxes (m)."""
+        """Minimum distance between two instance boxes (m); both must stand along the room axes
+        (their tight and axis-aligned boxes coincide)."""
+        if a.turned or b.turned:
+            raise ValueError("box_distance is defined here for instances along the room axes only")
         return aabb_distance(a.bmin, a.bmax, b.bmin, b.bmax)
 
     def interval_ok(self, f0: int, f1: int) -> bool:
@@ -349,6 +381,10 @@ class ScanNetScene:
                     "ann_max": round_list(i.bmax),
                     "center_ann": round_list(i.center),
                     "size": round_list(i.size),
+                    "turn_deg": round(i.turn_deg, 6),
+                    "box_center_ann": round_list(i.box_center),
+                    "box_lwh": round_list(i.box_lwh),
+                    "box_yaw_deg": round(math.degrees(math.atan2(i.box_R[1, 0], i.box_R[0, 0])), 6),
                 }
                 for i in self.instances
             ],
@@ -358,37 +394,50 @@ class ScanNetScene:
 # ============================================================================== construction
 
 
-def _place_objects(rng: np.random.Generator, W: float, D: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """Boxes along the walls, no overlaps: list of (label, min, max) in the ann frame."""
+def _place_objects(
+    rng: np.random.Generator, W: float, D: float, turn_rng: np.random.Generator | None = None
+) -> list[tuple[str, np.ndarray, np.ndarray, float, float]]:
+    """Boxes along the walls, no overlaps: list of (label, min, max, turn, along-wall yaw) in the ann
+    frame; ``min``/``max`` bound the (possibly turned) box, ``turn`` (rad) is drawn from ``turn_rng``
+    for :data:`TURNABLE` labels, the yaw of the box's own x axis is ``base + turn``."""
     n_chairs = int(rng.integers(3, 5))
     pool = [k for k in _LABELS if k not in ("chair", "door", "trash can")]
     others = list(rng.choice(pool, size=5, replace=False))
     labels = ["door"] + ["chair"] * n_chairs + others
     if rng.random() < 0.5:
         labels += ["trash can", "trash can"]
-    placed: list[tuple[str, np.ndarray, np.ndarray]] = []
+    placed: list[tuple[str, np.ndarray, np.ndarray, float, float]] = []
     for label in labels:
         spec = _LABELS[label]
+        turn = 0.0
+        if turn_rng is not None and label in TURNABLE and turn_rng.random() < TURN_PROBABILITY:
+            turn = math.radians(turn_rng.uniform(*TURN_DEG)) * float(turn_rng.choice([-1, 1]))
         for _ in range(400):
             along, across, height = (rng.uniform(*r) for r in spec["size"])
             wall = int(rng.integers(0, 4))
             gap = 0.02 if label == "door" else rng.uniform(0.05, 0.35)
             if label == "chair":
                 gap = rng.uniform(0.3, 0.7)
+            # footprint extents along and across the wall (of the turned box when turned)
+            c, s_ = abs(math.cos(turn)), abs(math.sin(turn))
+            e_al, e_ac = along * c + across * s_, along * s_ + across * c
             if wall in (0, 1):  # walls y = 0 / y = D, extent along x
-                x0 = rng.uniform(0.1, W - along - 0.1)
-                y0 = gap if wall == 0 else D - gap - across
-                lo, hi = np.array([x0, y0, 0.0]), np.array([x0 + along, y0 + across, height])
+                x0 = rng.uniform(0.1, W - e_al - 0.1)
+                y0 = gap if wall == 0 else D - gap - e_ac
+                lo, hi = np.array([x0, y0, 0.0]), np.array([x0 + e_al, y0 + e_ac, height])
+                base = 0.0
             else:  # walls x = 0 / x = W, extent along y
-                y0 = rng.uniform(0.1, D - along - 0.1)
-                x0 = gap if wall == 2 else W - gap - across
-                lo, hi = np.array([x0, y0, 0.0]), np.array([x0 + across, y0 + along, height])
+                y0 = rng.uniform(0.1, D - e_al - 0.1)
+                x0 = gap if wall == 2 else W - gap - e_ac
+                lo, hi = np.array([x0, y0, 0.0]), np.array([x0 + e_ac, y0 + e_al, height])
+                base = math.pi / 2
             lo[2] += spec["z"]
             hi[2] += spec["z"]
             if all(
-                np.any(lo[:2] > b_hi[:2] + 0.1) or np.any(hi[:2] < b_lo[:2] - 0.1) for _, b_lo, b_hi in placed
+                np.any(lo[:2] > b_hi[:2] + 0.1) or np.any(hi[:2] < b_lo[:2] - 0.1)
+                for _, b_lo, b_hi, _, _ in placed
             ):
-                placed.append((label, lo, hi))
+                placed.append((label, lo, hi, turn, (base, along, across)))
                 break
     return placed
 
@@ -452,7 +501,7 @@ def build_scene(
     """Build one scene (world model only; :func:`write_scene` writes its files)."""
     rng = np.random.default_rng(seed)
     W, D = float(rng.uniform(5.0, 7.0)), float(rng.uniform(4.5, 6.0))
-    boxes = _place_objects(rng, W, D)
+    boxes = _place_objects(rng, W, D, np.random.default_rng([seed, 1]))
 
     # axisAlignment: rotation about +Z (never identity) plus a translation; parse back the text
     alpha = rng.choice([-1, 1]) * rng.uniform(math.radians(20), math.radians(160))
@@ -461,7 +510,7 @@ def build_scene(
     Ainv = np.linalg.inv(A)
 
     n = int(round(duration * FPS))
-    targets = [(lo + hi) / 2 for _, lo, hi in boxes]
+    targets = [(lo + hi) / 2 for _, lo, hi, _, _ in boxes]
     P_ann = _camera_path(rng, W, D, n, targets)
     poses = np.einsum("ij,njk->nik", Ainv, P_ann).astype(np.float32).astype(np.float64)
     valid = np.ones(n, bool)
@@ -475,16 +524,22 @@ def build_scene(
     instances = []
     used_desc: dict[str, int] = {}
     unit_box = np.asarray(trimesh.creation.box(extents=[1.0, 1.0, 1.0]).vertices)  # corners at +-0.5
-    for oid, (label, lo, hi) in enumerate(boxes):
-        corners_ann = (lo + hi) / 2 + unit_box * (hi - lo)
+    for oid, (label, lo, hi, turn, (base, along, across)) in enumerate(boxes):
+        if turn:  # the box's own axes: x along the wall, turned by ``turn`` about +Z
+            local = unit_box * np.array([along, across, hi[2] - lo[2]])
+            corners_ann = (lo + hi) / 2 + local @ rot_z(base + turn).T
+        else:
+            corners_ann = (lo + hi) / 2 + unit_box * (hi - lo)
         raw32 = (corners_ann @ Ainv[:3, :3].T + Ainv[:3, 3]).astype(np.float32).astype(np.float64)
         back = raw32 @ A[:3, :3].T + A[:3, 3]
         k = used_desc.get(label, 0)
         used_desc[label] = k + 1
         descs = _LABELS[label]["desc"]
+        bc, bR, blwh = tight_upright_box(back)
         instances.append(
             Instance(
-                oid, str(label), str(descs[k % len(descs)]), back.min(0), back.max(0), raw_vertices=raw32
+                oid, str(label), str(descs[k % len(descs)]), back.min(0), back.max(0), raw_vertices=raw32,
+                turn_deg=math.degrees(turn), box_center=bc, box_R=bR, box_lwh=blwh,
             )
         )
     K = (1170.187988, 1170.187988, 647.75, 483.75)

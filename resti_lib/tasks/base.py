@@ -1,23 +1,48 @@
-"""What every task module returns, and the shared last steps: options, rows, exclusions, provenance.
+"""The task interface and what every task shares: outcomes, exclusions, rows, provenance, option specs.
 
-A task module exposes ``audit(rows, ctx, params) -> list[Outcome]``: one :class:`Outcome` per legacy
-row of its task (never fewer: a row it cannot handle is an exclusion with a reason). Then
-:func:`finalize` builds the five candidates (``options.builders``), assigns balanced letters and
-ranks, and writes the ReSTI-schema rows, the exclusion records and the provenance records.
+A task is a registered plug-in (:class:`Task`, :func:`resti_lib.tasks.register_task`) that says only
+what is specific to it:
+
+``read_contract(row, video_map)``
+    its contract ``C = (s, e, t, F, q, u, σ, D)`` read from a legacy row (:mod:`resti_lib.contract`);
+``reconstruct(case)``
+    resolve the referent and take the value from its registered measure operator
+    (:meth:`Case.measure`), setting ``case.answer``; raise :class:`Exclude` when the row has no
+    uniquely scoreable answer;
+``diagnose(case)`` / ``diagnose_all(cases)``
+    the hypotheses tested against the legacy value, concluding in an
+    :class:`~resti_lib.adjudicate.Diagnosis` (``diagnose_all`` for hypotheses decided over a whole
+    source, e.g. the statistic of "average speed");
+``rewrite(case)``
+    the question text that states the contract.
+
+The runner (:mod:`resti_lib.tasks.run`) owns the rest, once: the :class:`Outcome` of each row,
+legacy parsing, adjudication, answer-layer defects, exclusions, provenance and the option spec
+handed to the option stage; :func:`finalize` builds the candidates (one call, ``build_options``),
+assigns balanced letters and ranks, and writes the ReSTI-schema rows, the exclusion records and the
+provenance records.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
 
 from .. import LETTERS, SCENE_OF_SOURCE
+from .. import defaults as D
+from .. import values as V
+from ..adjudicate import Diagnosis, Rule, compare_scalar
+from ..contract import MISSING_DEFECTS, Contract
+from ..errors import ContractError
 from ..io.benchmark import atomic_write_bytes, jsonl_text, parse_key
+from ..measure import Measured, measure
 from ..options import builders as B
 from ..rng import balanced_schedule, row_rng
 
@@ -65,8 +90,9 @@ class Outcome:
     source_files: list = field(default_factory=list)
     frames: dict = field(default_factory=dict)
     transform_chain: str = ""
+    option_spec: dict | None = None
 
-    def exclude(self, *reasons: str, **evidence) -> "Outcome":
+    def exclude(self, *reasons: str, **evidence) -> Outcome:
         self.verdict = "excluded"
         self.reasons = list(dict.fromkeys([*self.reasons, *reasons]))
         self.evidence.update(evidence)
@@ -74,11 +100,124 @@ class Outcome:
         return self
 
 
-@dataclass
-class TaskResult:
-    accepted: list
-    excluded: list
-    provenance: pd.DataFrame
+class Exclude(Exception):
+    """Raised in a task hook: the row is excluded with ``reasons`` (codes of
+    :data:`resti_lib.defects.REASONS`), an optional defect code, and evidence."""
+
+    def __init__(self, *reasons: str, defect: str | None = None, **evidence):
+        super().__init__(", ".join(reasons))
+        self.reasons, self.defect, self.evidence = list(reasons), defect, evidence
+
+    def apply(self, o: Outcome) -> Outcome:
+        if self.defect and self.defect not in o.defects:
+            o.defects.append(self.defect)
+        return o.exclude(*self.reasons, **self.evidence)
+
+
+@dataclass(eq=False)
+class Case:
+    """One legacy row while its task works on it: the hooks read and fill it.
+
+    ``legacy``: the Answer Detail parsed as the task's ``legacy_kind`` (None when unreadable,
+    ``legacy_problem`` says why). ``answer``: the reconstructed answer; ``value``: the measured value
+    (SI for scalars) the diagnosis compares. ``rule``: the comparison
+    rule used (for the option spec). ``observables``: what the option stage may use besides the
+    answer (subject, premise, ...). ``state``: the task's working data between its hooks.
+    """
+
+    task: Task
+    row: dict
+    outcome: Outcome
+    contract: Contract
+    legacy: V.Value | None
+    legacy_problem: str | None
+    ctx: Any
+    params: dict
+    answer: AnswerSpec | None = None
+    value: Any = None
+    diagnosis: Diagnosis | None = None
+    rule: dict | None = None
+    observables: dict = field(default_factory=dict)
+    state: dict = field(default_factory=dict)
+
+    @property
+    def source(self) -> str:
+        return self.outcome.source
+
+    @property
+    def detail(self):
+        return self.row.get("Answer Detail")
+
+    def measure(self, operator: str, entity: dict, times: list, **extra) -> Measured:
+        """The value of ``operator`` on this row's sequence (the registered operator ``resti
+        measure`` runs, with this run's params and opened sources). Raises ContractError."""
+        c = self.contract
+        contract = {"source": c.source, "sequence": c.sequence, "camera": c.camera, "entity": entity,
+                    "times": [float(t) for t in times], "operator": operator, **extra}
+        return measure(contract, self.params, sources=self.ctx)
+
+    def provenance(self, *, files=None, frames=None, chain=None) -> None:
+        """Record the source files read, the frames / timestamps used and the transform chain."""
+        if files is not None:
+            self.outcome.source_files = list(files)
+        if frames is not None:
+            self.outcome.frames = dict(frames)
+        if chain is not None:
+            self.outcome.transform_chain = chain
+
+
+class Task:
+    """A task plug-in (module docstring). Subclass, set the class attributes, implement the hooks,
+    and register it with :func:`resti_lib.tasks.register_task`.
+
+    Class attributes
+    ----------------
+    name : the legacy ``Task`` value. params_name : ``params/<params_name>.yaml`` (and the notebook
+    ``notebooks/NN_<params_name>.ipynb``) hold its parameters and their defaults. legacy_kind : the
+    :mod:`resti_lib.values` class(es) a legacy Answer Detail must parse to. operators : the measure
+    operators its values come from. missing_defects : question-layer defect code per missing contract
+    part.
+    """
+
+    name: ClassVar[str] = ""
+    params_name: ClassVar[str] = ""
+    legacy_kind: ClassVar[type | tuple | None] = None
+    operators: ClassVar[tuple[str, ...]] = ()
+    missing_defects: ClassVar[dict] = {k: v for k, v in MISSING_DEFECTS.items() if k in ("unit", "subject")}
+    setting_overrides: ClassVar[tuple[str, ...]] = ()
+
+    # -- parameters
+    def settings(self, params: dict | None) -> dict:
+        """``params/<params_name>.yaml`` overridden by ``params`` (defaults written once)."""
+        return D.merged(self.params_name, params) if self.params_name else dict(params or {})
+
+    # -- hooks
+    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
+        raise NotImplementedError
+
+    def reconstruct(self, case: Case) -> None:
+        raise NotImplementedError
+
+    def diagnose(self, case: Case) -> None:
+        """Default: the scalar ``case.value`` (SI) compared with the legacy value under ``case.rule``."""
+        rule = Rule(abs_tol=float(case.rule.get("abs_tol", 0.0)), rel_tol=float(case.rule.get("rel_tol", 0.0))) \
+            if case.rule else Rule()
+        cmp = compare_scalar(case.legacy, float(case.value), case.answer.unit, rule)
+        case.diagnosis = Diagnosis.from_comparison(cmp)
+
+    def diagnose_all(self, cases: list[Case]) -> None:
+        for case in cases:
+            self.diagnose(case)
+
+    def rewrite(self, case: Case) -> str:
+        raise NotImplementedError
+
+    def question_defects(self, contract: Contract) -> list[str]:
+        """Question-layer defect codes of the contract's missing parts."""
+        return [self.missing_defects[m] for m in contract.missing if self.missing_defects.get(m)]
+
+
+# ------------------------------------------------------------------------------------ helpers
 
 
 def slug(task: str) -> str:
@@ -116,9 +255,35 @@ def _round_floats(obj, nd: int = 6):
     return obj
 
 
+# ------------------------------------------------------------------------------- option stage
+
+
+def builder_params(spec: AnswerSpec, params: dict) -> dict:
+    """The builder keyword arguments of an answer: the task's ``options: {kind: {...}}`` overridden
+    by the answer's own ``options``."""
+    return {**params.get(spec.kind, {}), **spec.options}
+
+
+def option_spec(o: Outcome, spec: AnswerSpec, *, rule: dict | None, observables: dict, params: dict) -> dict:
+    """What the option stage needs to build the candidates of one accepted row, in one place:
+    ``{kind, unit, decimals, rule, floors, builder, observables}`` (``floors``: the separation
+    floors, ``builder``: the builder settings of this row)."""
+    kw = builder_params(spec, params)
+    obs = {"time_start": o.time_start, "time_end": o.time_end,
+           "window_s": None if o.time_start is None or o.time_end is None else float(o.time_end) - float(o.time_start),
+           "source": o.source, "sequence": o.contract.get("sequence"), "camera": o.contract.get("camera"),
+           **observables}
+    out = {"kind": spec.kind, "unit": spec.unit, "decimals": spec.decimals, "rule": rule,
+           "floors": {k: v for k, v in kw.items() if k.startswith("min_")},
+           "builder": {k: v for k, v in kw.items() if not k.startswith("min_")}, "observables": obs}
+    if spec.labels is not None:
+        out["labels"] = list(spec.labels)
+    return json.loads(_json(_round_floats(out, 9)))
+
+
 def build_options(spec: AnswerSpec, *, rng, target_rank: int | None, params: dict) -> B.Options:
     """Dispatch to the builder of the answer's kind, with params merged (spec overrides params)."""
-    kw = {**params.get(spec.kind, {}), **spec.options}
+    kw = builder_params(spec, params)
     if spec.kind == "scalar":
         dec = B.scalar_decimals(float(spec.value), spec.decimals) if kw.pop("adapt_decimals", True) else spec.decimals
         return B.scalar_options(float(spec.value), spec.unit, rng=rng, decimals=dec, target_rank=target_rank,
@@ -134,7 +299,17 @@ def build_options(spec: AnswerSpec, *, rng, target_rank: int | None, params: dic
         return B.trajectory_options(spec.value, rng=rng, **kw)
     if spec.kind == "label":
         return B.label_options(spec.value, list(spec.labels or []))
-    raise ValueError(f"unknown answer kind {spec.kind!r}")
+    raise ContractError(f"unknown answer kind {spec.kind!r} (one of {', '.join(KINDS)})")
+
+
+# --------------------------------------------------------------------------------- the output
+
+
+@dataclass
+class TaskResult:
+    accepted: list
+    excluded: list
+    provenance: pd.DataFrame
 
 
 def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option_params: dict | None = None
@@ -192,6 +367,7 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
             "frames": _json(_round_floats(o.frames)), "transform_chain": o.transform_chain,
             "evidence": _json(_round_floats({**o.evidence, **({"options": opt_ev} if opt_ev else {})})),
             "legacy_detail": o.legacy_detail, "new_detail": new_detail,
+            "option_spec": _json(o.option_spec) if o.option_spec is not None and o.verdict != "excluded" else None,
         })
     return TaskResult(accepted, excluded, pd.DataFrame(prov))
 
@@ -201,8 +377,6 @@ def write_task_outputs(result: TaskResult, out_dir: str | Path) -> dict:
     out_dir = Path(out_dir)
     atomic_write_bytes(out_dir / "accepted.jsonl", jsonl_text(result.accepted).encode("utf-8"))
     atomic_write_bytes(out_dir / "excluded.jsonl", jsonl_text(result.excluded, sort_keys=True).encode("utf-8"))
-    import io
-
     buf = io.BytesIO()
     result.provenance.to_parquet(buf, index=False, compression="zstd")
     atomic_write_bytes(out_dir / "provenance.parquet", buf.getvalue())
@@ -216,5 +390,5 @@ def outcome_table(outcomes: list[Outcome]) -> pd.DataFrame:
                          for o in outcomes])
 
 
-__all__ = ["AnswerSpec", "Outcome", "TaskResult", "finalize", "write_task_outputs", "resti_id", "slug",
-           "outcome_table", "asdict"]
+__all__ = ["AnswerSpec", "Case", "Exclude", "Outcome", "Task", "TaskResult", "asdict", "build_options", "finalize",
+           "option_spec", "outcome_table", "resti_id", "slug", "write_task_outputs"]

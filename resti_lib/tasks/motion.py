@@ -1,4 +1,7 @@
-"""Motion subjects of Displacement & Path Length and Speed & Acceleration.
+"""Motion questions (Displacement & Path Length, Speed & Acceleration): their contract and subject.
+
+:func:`read_motion_contract` reads the contract of a motion question (operator, subject, interval,
+the statistic when the text leaves it open).
 
 A question's subject is the camera (ScanNet: ``T_raw<-cam``; Waymo: the video's camera,
 ``world_from_vehicle @ extrinsic`` in OpenCV axes; Omni6DPose: the camera rebased to its first
@@ -12,7 +15,8 @@ Waymo objects are matched in steps, each recorded in the evidence:
 3. a motion cue of the description ("parked") keeps static tracks; otherwise a question that
    presupposes motion ("traveled", "accelerating") keeps tracks that move at least
    ``min_motion_m`` over the interval, when any do;
-4. when several remain, the legacy value may decide: the one track whose value agrees with the
+4. when several remain, the legacy value may decide: the one track whose value (the task's
+   measure operator on that track) agrees with the
    legacy Answer Detail (comparison rule of the task) is taken; otherwise ``ambiguous_instance``
    with every candidate's value and their spread.
 
@@ -30,25 +34,49 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..contract import Contract, base_contract, description, interval
+from ..defaults import setting
 from ..errors import ContractError
 from ..geometry import trajectory as G
 from ..geometry.trajectory import PoseTrack
-from .referents import (
-    GENERIC_NOUNS,
-    WAYMO_NOUNS,
-    SceneView,
-    box_from,
-    box_visibility,
-    in_camera,
-    read_phrase,
-    size_fits,
-)
-from .scalar_audit import Excluded, tie_break_by_legacy
+from ..referents import GENERIC_NOUNS, WAYMO_NOUNS, SceneView, box_from, box_visibility, in_camera, size_fits
+from ..sources.context import derived
+from .base import Exclude
+from .scalar_audit import tie_break_by_legacy
 
-__all__ = ["Subject", "ambiguous_subject", "camera_subject", "source_frames", "waymo_object_subject"]
+__all__ = ["Subject", "ambiguous_subject", "camera_subject", "read_motion_contract", "source_frames",
+           "waymo_object_subject"]
+
+CAMERA_WORDS = ("camera", "ego", "our car", "the vehicle we", "recording vehicle")
+AMBIGUOUS_SUBJECTS = ("the car", "the vehicle")  # on Waymo: the ego car or another tracked car
+SUBJECT_PATTERNS = (r"How far has (?:the |a |an )?(.+?) traveled", r"How quickly is (?:the |a |an )?(.+?) accelerating")
+
+
+def read_motion_contract(row: dict, video_map: dict | None, operator: str) -> tuple[Contract, str]:
+    """The contract of a motion question with its ``operator`` decided by the task; the subject
+    (camera, object, or ambiguous "the car" on Waymo), the interval and the unit tag. Returns the
+    contract and the lower-case question."""
+    c, q = base_contract(row, operator, video_map=video_map)
+    ql = q.lower()
+    desc = description(row, q, SUBJECT_PATTERNS)
+    if any(w in ql for w in CAMERA_WORDS):
+        c.entity = {"kind": "camera"}
+    elif c.source == "Waymo" and any(ql.startswith(f"how far has {w[4:]}") or f"has {w}" in ql
+                                     for w in AMBIGUOUS_SUBJECTS) and desc in ("car", "vehicle"):
+        c.entity = {"kind": "ambiguous", "candidates": ["camera", "object"], "description": desc}
+        c.miss("subject")
+    else:
+        c.entity = {"kind": "object", "description": desc}
+    c.times = interval(c, row)
+    if not c.time_stated:
+        c.miss("time")
+    if not c.unit_stated:
+        c.miss("unit")
+    return c, ql
+
 
 class Subject:
-    """A resolved motion subject: its track, a text for the question and evidence."""
+    """A resolved motion subject: its track, its entity for the measure operators, evidence."""
 
     def __init__(self, kind: str, track: PoseTrack, text: str, evidence: dict, entity: dict, files: list):
         self.kind, self.track, self.text, self.evidence, self.entity, self.files = (kind, track, text, evidence,
@@ -74,50 +102,42 @@ def camera_subject(view: SceneView) -> Subject:
         files = [tr.source]
         chain = "P(t) = T_raw<-cam (.sens camera_to_world); position = camera centre"
     elif view.source == "Waymo":
-        tr = view.seq.camera_track(view.camera)
+        tr = _cam_track(view)
         files = [str(view.seq.path("vehicle_pose")), str(view.seq.path("camera_calibration"))]
         chain = "world_from_vehicle(t) @ extrinsic(camera) @ waymo->opencv; position = camera centre"
     else:
         tr = view.seq.camera_track(rebase=True)
         files = [str(view.seq.dir)]
-        chain = "T_c0<-cam(t) (ROPE camera pose, verified convention, rebased to the first frame)"
+        chain = ("T_c0<-cam(t) = T_c0<-obj T_cam(t)<-obj^-1 over the static ROPE objects (or a stored camera "
+                 "pose that agrees with them), first frame as the world")
+        return Subject("camera", tr, "the camera", {"subject": "camera", "track": tr.name, "transform_chain": chain,
+                                                    "camera_track": tr.meta.get("evidence")},
+                       {"kind": "camera"}, files)
     return Subject("camera", tr, "the camera", {"subject": "camera", "track": tr.name, "transform_chain": chain},
                    {"kind": "camera"}, files)
 
 
-def _memo(view: SceneView) -> dict:
-    """Derived data kept on the opened sequence (shared by every question on it)."""
-    return view.seq.__dict__.setdefault("_derived_memo", {})
-
-
 def _track(view: SceneView, oid: str) -> PoseTrack:
-    cache = _memo(view)
-    key = ("object_track", oid)
-    if key not in cache:
-        cache[key] = view.seq.object_track(oid)
-    return cache[key]
+    return derived(view.seq, ("object_track", oid), lambda: view.seq.object_track(oid))
 
 
 def _cam_track(view: SceneView) -> PoseTrack:
-    cache = _memo(view)
-    key = ("camera_track", view.camera)
-    if key not in cache:
-        cache[key] = view.seq.camera_track(view.camera)
-    return cache[key]
+    return derived(view.seq, ("camera_track", view.camera), lambda: view.seq.camera_track(view.camera))
 
 
 def _visible_samples(view: SceneView, tr: PoseTrack) -> np.ndarray:
     """Per sample of the track: is the box visible in the video's camera (computed once per track)."""
-    cache = _memo(view)
     key = ("visible_samples", tr.name, view.camera, view.near, view.far, view.min_fraction)
-    if key in cache:
-        return cache[key]
+    return derived(view.seq, key, lambda: _visibility_of_samples(view, tr))
+
+
+def _visibility_of_samples(view: SceneView, tr: PoseTrack) -> np.ndarray:
     cam = _cam_track(view)
     intr = view.seq.camera_calibration(view.camera)
     k = intr["intrinsics"]
     intr = {"fx": k["f_u"], "fy": k["f_v"], "cx": k["c_u"], "cy": k["c_v"], "width": intr["width"],
             "height": intr["height"]}
-    Tc, _ = G.pose_at(cam, tr.times, "linear", G.DEFAULT_TOL, errors="nan")
+    Tc, _ = G.pose_at(cam, tr.times, "linear", view.time_tol, errors="nan")
     vis = np.zeros(len(tr.times), dtype=bool)
     for i in range(len(tr.times)):
         if not np.isfinite(Tc[i]).all():
@@ -125,7 +145,6 @@ def _visible_samples(view: SceneView, tr: PoseTrack) -> np.ndarray:
         b = box_from(tr.T[i, :3, 3], tr.T[i, :3, :3], tr.meta["size"][i])
         v = box_visibility(in_camera(b, Tc[i]), intr, near=view.near, far=view.far, min_fraction=view.min_fraction)
         vis[i] = bool(v["visible"])
-    cache[key] = vis
     return vis
 
 
@@ -143,21 +162,22 @@ def _covers(tr: PoseTrack, t0: float, t1: float, tol: float = 0.06) -> bool:
 
 
 def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float,
-                         value_fn: Callable[[PoseTrack], float], detail, unit: str, rule, params: dict, *,
+                         value_fn: Callable[[dict], float], legacy, unit: str, rule, params: dict, *,
                          presupposes_motion: bool) -> Subject:
-    """Resolve a Waymo object track by description (see the module docstring); raises Excluded."""
-    ph = read_phrase(desc)
-    noun, plural, mev, pred = view.matcher(ph)
-    if ph.grouped or plural:
-        raise Excluded("grouped_referent", "grouped_referent", phrase=desc,
-                       marker=ph.grouped or f"plural: {mev.get('matched')}")
-    typed = [i for i in view.all_instances() if pred(i)]
+    """Resolve a Waymo object track by description (see the module docstring); raises Exclude.
+
+    ``value_fn(entity)``: the task's value for a candidate entity (its measure operator)."""
+    ref = view.resolve(desc)
+    noun, mev = ref.label, ref.evidence
+    if ref.grouped:
+        raise Exclude("grouped_referent", defect="grouped_referent", phrase=desc, marker=ref.grouped)
+    typed = [i for i in view.all_instances() if view.matches(ref, i)]
     ev = {"phrase": desc, "noun_class": mev, "n_type_and_size": len(typed)}
     if noun is None or not typed:
-        raise Excluded("no_source_instance", "no_source_instance", **ev,
-                       types_in_segment=view.labels())
-    min_motion = float(params.get("min_motion_m", 0.5))
-    tol = float(params.get("time_tol", 1e-3))
+        raise Exclude("no_source_instance", defect="no_source_instance", **ev,
+                      types_in_segment=view.labels())
+    min_motion = float(params["min_motion_m"])
+    tol = float(setting(params, "time_tol"))
     cands, seen = [], []
     for inst in typed:
         tr = _track(view, inst.id)
@@ -165,7 +185,7 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
             continue
         try:
             path, _ = G.path_length(tr, t0, t1, tol=tol, gaps="skip")
-            value = float(value_fn(tr))
+            value = float(value_fn({"kind": "object", "id": inst.id}))
         except ContractError:
             continue
         vis = visible_in_interval(view, tr, t0, t1)
@@ -173,10 +193,10 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
         if vis["n_visible"]:
             cands.append({"id": inst.id, "track": tr, "path_m": path, "value_si": value, **vis})
     ev["n_covering_and_visible"] = len(cands)
-    if ph.motion == "static":
+    if ref.phrase.motion == "static":
         wanted = [c for c in cands if c["path_m"] < min_motion]
         ev["motion_cue"] = "static"
-    elif presupposes_motion or ph.motion == "moving":
+    elif presupposes_motion or ref.phrase.motion == "moving":
         wanted = [c for c in cands if c["path_m"] >= min_motion]
         ev["motion_cue"] = "moving (presupposed by the question)" if presupposes_motion else "moving"
     else:
@@ -184,26 +204,26 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
     if presupposes_motion and not wanted:
         # the question needs a moving object: a static one in view is not its referent
         moving_unseen = [s_ for s_ in seen if s_["path_m"] >= min_motion and not s_["n_visible"]]
-        reason = ("not_visible_at_frame", "not_visible") if moving_unseen else ("no_source_instance",
-                                                                                "no_source_instance")
-        raise Excluded(*reason, **ev, t=[t0, t1], camera=view.camera, covering_tracks=seen,
-                       note="no moving track of the described class is seen by the camera during the interval")
+        reason, defect = ("not_visible_at_frame", "not_visible") if moving_unseen else ("no_source_instance",
+                                                                                        "no_source_instance")
+        raise Exclude(reason, defect=defect, **ev, t=[t0, t1], camera=view.camera, covering_tracks=seen,
+                      note="no moving track of the described class is seen by the camera during the interval")
     if not cands:
-        raise Excluded("not_visible_at_frame", "not_visible", **ev, t=[t0, t1], camera=view.camera,
-                       covering_tracks=seen,
-                       note="no track of the described class covers the interval and is seen by the camera")
+        raise Exclude("not_visible_at_frame", defect="not_visible", **ev, t=[t0, t1], camera=view.camera,
+                      covering_tracks=seen,
+                      note="no track of the described class covers the interval and is seen by the camera")
     cands = wanted or cands
     ev["n_after_motion_cue"] = len(cands)
     if len(cands) > 1:
         tb = params.get("legacy_tie_break", True)
         enabled = bool(tb.get("Waymo", True) if isinstance(tb, dict) else tb)
-        k, tev = tie_break_by_legacy([c["id"] for c in cands], [c["value_si"] for c in cands], detail, unit, rule,
+        k, tev = tie_break_by_legacy([c["id"] for c in cands], [c["value_si"] for c in cands], legacy, unit, rule,
                                      enabled=enabled)
         ev["referent"] = tev
         if k is None:
             vals = [c["value_si"] for c in cands]
-            raise Excluded("ambiguous_instance", "multiple_instances", **ev, candidates=[c["id"] for c in cands],
-                           value_spread_si=round(float(max(vals) - min(vals)), 6))
+            raise Exclude("ambiguous_instance", defect="multiple_instances", **ev,
+                          candidates=[c["id"] for c in cands], value_spread_si=round(float(max(vals) - min(vals)), 6))
         cands = [cands[k]]
     c = cands[0]
     tr = c["track"]
@@ -216,20 +236,20 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
 
 
 def ambiguous_subject(view: SceneView, desc: str | None, t0: float, t1: float,
-                      value_fn: Callable[[PoseTrack], float], params: dict) -> Subject:
+                      value_fn: Callable[[dict], float], params: dict) -> Subject:
     """A bare "the car": excluded when a tracked vehicle moves, else the camera (the evidence says so)."""
     cam = camera_subject(view)
     ev = {"description": desc, "subjects": ["camera (recording vehicle)", "tracked vehicles"]}
     try:
-        ev["camera_value_si"] = round(float(value_fn(cam.track)), 6)
+        ev["camera_value_si"] = round(float(value_fn(cam.entity)), 6)
     except ContractError as e:
         ev["camera_error"] = str(e)
     objs = []
     if view.source == "Waymo":
-        ph = read_phrase(desc)
-        noun = ph.head.split()[-1] if ph.head else "car"
+        head = view.resolve(desc).head
+        noun = head.split()[-1] if head else "car"
         typ, rng = WAYMO_NOUNS.get(noun if noun in GENERIC_NOUNS else "car")
-        min_motion = float(params.get("min_motion_m", 0.5))
+        min_motion = float(params["min_motion_m"])
         for inst in view.all_instances():
             if inst.label != typ or not size_fits(inst.dims, rng):
                 continue
@@ -237,16 +257,68 @@ def ambiguous_subject(view: SceneView, desc: str | None, t0: float, t1: float,
             if not _covers(tr, t0, t1):
                 continue
             try:
-                path, _ = G.path_length(tr, t0, t1, tol=float(params.get("time_tol", 1e-3)), gaps="skip")
+                path, _ = G.path_length(tr, t0, t1, tol=float(setting(params, "time_tol")), gaps="skip")
                 if path < min_motion:
                     continue
-                objs.append({"id": inst.id, "value_si": round(float(value_fn(tr)), 6), "path_m": round(path, 6),
+                objs.append({"id": inst.id, "value_si": round(float(value_fn({"kind": "object", "id": inst.id})), 6),
+                             "path_m": round(path, 6),
                              "visible_samples": visible_in_interval(view, tr, t0, t1)["n_visible"]})
             except ContractError:
                 continue
     ev.update({"object_candidates": objs, "n_object_candidates": len(objs)})
     if objs:
-        raise Excluded("ambiguous_subject", None, **ev)
+        raise Exclude("ambiguous_subject", **ev)
     cam.evidence.update({"subject_resolution": "no tracked vehicle moves in view during the interval: the "
                                                "recording vehicle's camera is the only candidate", **ev})
     return cam
+
+
+# ------------------------------------------------------------------------ unnamed statistics
+
+
+def reading_per_source(rows: list[tuple[str, dict]], names: dict[str, str], default: str,
+                       mixed_share: float = 0.25) -> dict[str, dict]:
+    """Per source: the reading of the legacy rows whose question leaves the statistic open.
+
+    ``rows``: ``(source, {reading: legacy agrees})`` per such row, two readings (``names`` gives
+    their short names for the counts, e.g. ``{"average_velocity": "velocity", ...}``). The reading
+    of a source is the one matched by the majority of its rows that match exactly one; ``default``
+    when they tie. A source is *mixed* when the minority reading has at least ``mixed_share`` of
+    those rows; there each such row keeps its own reading.
+    """
+    a, b = list(names)
+    out: dict[str, dict] = {}
+    for source, match in rows:
+        d = out.setdefault(source, {"n_rows": 0, f"n_{names[a]}_only": 0, f"n_{names[b]}_only": 0, "n_both": 0,
+                                    "n_neither": 0})
+        d["n_rows"] += 1
+        key = {(True, False): f"n_{names[a]}_only", (False, True): f"n_{names[b]}_only", (True, True): "n_both",
+               (False, False): "n_neither"}[(bool(match[a]), bool(match[b]))]
+        d[key] += 1
+    for d in out.values():
+        na, nb = d[f"n_{names[a]}_only"], d[f"n_{names[b]}_only"]
+        lo, hi = sorted((na, nb))
+        d["mixed"] = bool(hi and lo / (lo + hi) >= mixed_share)
+        if na > nb:
+            d["statistic"], d["decided_by"] = a, "majority of discriminating rows"
+        elif nb > na:
+            d["statistic"], d["decided_by"] = b, "majority of discriminating rows"
+        else:
+            d["statistic"], d["decided_by"] = default, "undetermined: params default_statistic"
+    return out
+
+
+def row_reading(match: dict, group: dict) -> tuple[str, bool, dict]:
+    """The reading of one row in its source (:func:`reading_per_source`): ``(reading, determined,
+    evidence)``; ``determined`` is false when only the params default decided it."""
+    own = [k for k, m in match.items() if m]
+    majority = group["decided_by"].startswith("majority")
+    determined = majority or len(own) == 1
+    reading = own[0] if (len(own) == 1 and (group["mixed"] or not majority)) else group["statistic"]
+    ev = {"row_statistic": ("matched one statistic" if len(own) == 1 else
+                            "matched both (the source's statistic)" if own else
+                            "matched neither (the source's statistic)")}
+    if len(own) == 1 and reading != own[0]:
+        ev["coincidence"] = (f"the legacy value also agrees with {own[0]}, a chance agreement in a source whose "
+                             f"rows use {reading}")
+    return reading, determined, ev

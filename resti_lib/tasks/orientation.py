@@ -6,7 +6,7 @@ Repair (report, "Repair: gravity-relative optical heading")
 Waymo camera's ``+X``, which the OpenCV-converted track carries as ``+Z``), projected on the plane
 orthogonal to world up ``u`` (ScanNet raw ``+Z``, Waymo world ``+Z``), and
 ``theta = atan2(u . (h0 x h1), h0 . h1)`` wrapped to [-180, 180)
-(:func:`resti_lib.geometry.trajectory.heading_change`). A sequence ending in invalid poses has
+(the measure operator ``heading_change``). A sequence ending in invalid poses has
 its interval shortened to the last valid timestamp, and the question says so; an invalid pose is
 never replaced.
 
@@ -23,35 +23,26 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from .. import values as V
-from ..adjudicate import verdict_for
-from ..contract import parse_question
-from ..errors import ContractError, InputError
+from ..adjudicate import Diagnosis
+from ..contract import Contract, base_contract, interval
+from ..errors import ContractError
 from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import opencv_cam_pose_to_waymo
 from ..geometry.trajectory import PoseTrack
 from ..rng import row_rng
 from ..sources.context import SourceContext
-from .base import AnswerSpec, Outcome
+from . import register_task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Ego-Centric Orientation"
-
-DEFAULTS: dict[str, Any] = {
-    "angle_abs_tol_deg": 0.01,
-    "time_tol_s": 1e-6,
-    "pose_rule": "linear",
-    "end_slack_s": 0.1,
-    "omni6d_up": [0.0, 0.0, 1.0],
-    "invariance_check": True,
-    "spread_deg": {"low": 2.0, "frac": 1.0, "min_high": 3.0, "max_high": 30.0},
-}
 
 #: Conventions evaluated against every legacy value (name -> description).
 CONVENTIONS = {
@@ -65,14 +56,8 @@ CONVENTIONS = {
     "geodesic_angle": "total rotation angle between the endpoint rotations (unsigned)",
 }
 LEGACY_OPERATORS = ("xz_plane_column2", "xz_plane_column2_reversed")
-
-
-def task_params(params: dict | None) -> dict:
-    """``DEFAULTS`` overridden by ``params`` (one level of dict merging)."""
-    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in DEFAULTS.items()}
-    for k, v in (params or {}).items():
-        out[k] = {**out[k], **v} if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
+VERDICT_REASON = ("the legacy question names no plane or convention; the value is derived as the gravity-horizontal "
+                  "heading change of the optical axis")
 
 
 def option_spread(theta: float, p: dict) -> tuple[float, float]:
@@ -144,7 +129,7 @@ def _yaw_zyx(R: np.ndarray) -> float:
 
 def conventions(tracks: Tracks, t0: float, t1: float, p: dict) -> dict[str, float]:
     """Every convention of :data:`CONVENTIONS` on the interval ``[t0, t1]`` (degrees)."""
-    rule, tol = str(p["pose_rule"]), float(p["time_tol_s"])
+    rule, tol = str(p["pose_rule"]), float(p["time_tol"])
     out = {}
     out["gravity_heading"], _ = G.heading_change(tracks.cv, t0, t1, tracks.forward, tracks.up, rule=rule, tol=tol)
     out["xz_plane_column2"], _ = G.legacy_plane_angle(tracks.src, t0, t1, 2, ("z", "x"), rule=rule, tol=tol)
@@ -164,7 +149,7 @@ def conventions(tracks: Tracks, t0: float, t1: float, p: dict) -> dict[str, floa
 
 def invariance_error(tracks: Tracks, t0: float, t1: float, p: dict, rng: np.random.Generator) -> float:
     """|theta(Q R, Q u) - theta(R, u)| in degrees for a random rigid rotation Q of trajectory and world."""
-    rule, tol = str(p["pose_rule"]), float(p["time_tol_s"])
+    rule, tol = str(p["pose_rule"]), float(p["time_tol"])
     (a, b), _ = G.interval_valid(tracks.cv, t0, t1, tol=tol)
     T0, _ = G.pose_at(tracks.cv, a, rule, tol)
     T1, _ = G.pose_at(tracks.cv, b, rule, tol)
@@ -206,95 +191,110 @@ def rewrite_question(t0: float, t1: float, shortened_from: float | None) -> str:
             "report the wrapped angle in [-180°, 180°).")
 
 
-def _parse_legacy(row: dict) -> tuple[float | None, int, str | None]:
-    try:
-        v = V.parse(row.get("Answer Detail"), row=row.get("Legacy Row Key"), field="Answer Detail")
-    except InputError as e:
-        return None, 2, e.message
-    if not isinstance(v, V.Scalar) or not (v.is_angle or v.unit == ""):
-        return None, 2, f"Answer Detail is not an angle: {row.get('Answer Detail')!r}"
-    return float(v.value), int(v.decimals), None
+@register_task
+class Orientation(Task):
+    name = TASK
+    params_name = "orientation"
+    legacy_kind = V.Scalar
+    operators = ("heading_change",)
+    missing_defects: ClassVar[dict] = {}
+
+    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
+        c, q = base_contract(row, "heading_change", video_map=video_map)
+        ql = q.lower()
+        c.entity = {"kind": "camera"}
+        c.times = interval(c, row)
+        if not ("gravity" in ql or "horizontal plane" in ql or "perpendicular to gravity" in ql):
+            c.miss("frame")
+        if not c.time_stated:
+            c.miss("time")
+        return c
+
+    def reconstruct(self, case: Case) -> None:
+        c, row, p, o = case.contract, case.row, case.params, case.outcome
+        if c.sequence is None:
+            raise Exclude("unsupported_question", problem="video maps to no source sequence")
+        t0, t1 = (float(x) for x in (c.times if len(c.times) == 2 else [row["time_start"], row["time_end"]]))
+        try:
+            tracks = camera_tracks(case.ctx, c.source, c.sequence, c.camera, p)
+            t0, t1, clamped = clamp_to_track(tracks.cv, t0, t1, float(p["end_slack_s"]))
+            m = case.measure("heading_change", {"kind": "camera"}, [t0, t1])
+            conv = conventions(tracks, t0, t1, p)
+        except ContractError as e:
+            msg = str(e)
+            reason = "invalid_pose_at_time" if "invalid" in msg.lower() else "unsupported_question"
+            raise Exclude(reason, error=msg, t0=t0, t1=t1) from None
+        theta, ev = float(m.value), m.evidence
+        t1_used = float(ev["t1_used"])
+        shortened = ev.get("shortened_to") is not None
+        frames = {"t0": t0, "t1": t1_used, "indices_t0": ev["indices_t0"], "indices_t1": ev["indices_t1"]}
+        if "frames" in tracks.cv.meta:
+            fr = tracks.cv.meta["frames"]
+            frames["source_frames"] = [int(fr[ev["indices_t0"][0]]), int(fr[ev["indices_t1"][-1]])]
+        if "micros" in tracks.cv.meta:
+            mi = tracks.cv.meta["micros"]
+            frames["frame_timestamp_micros"] = [int(mi[ev["indices_t0"][0]]), int(mi[ev["indices_t1"][-1]])]
+        case.provenance(files=tracks.files, frames=frames,
+                        chain="theta = atan2(u.(h0 x h1), h0.h1), h = horizontal projection of R(t) a; "
+                              + tracks.axes_note)
+        case.state.update(conv=conv, tracks=tracks, t0=t0, t1=t1, t1_used=t1_used, shortened=shortened)
+        o.evidence["heading"] = {"value_deg": theta, "forward_t0": ev["forward_t0"],
+                                 "forward_t1": ev["forward_t1"], "up": list(tracks.up), "world": tracks.world}
+        o.evidence["legacy_operator_axes"] = legacy_operator_axes(tracks, t0, t1_used, p)
+        if clamped:
+            o.evidence["clamped_to_track"] = clamped
+        if shortened:
+            o.evidence["shortened_to"] = float(ev["shortened_to"])
+            o.evidence["shortened_from"] = float(ev["shortened_from"])
+            o.evidence["shortening_reason"] = ev.get("reason")
+        c.times, c.time_stated, c.unit = [t0, t1_used], True, "deg"
+        c.frame = f"{tracks.world}; gravity-horizontal plane"
+        c.entity = {"kind": "camera", "camera": c.camera}
+        if shortened:
+            c.params = {**c.params, "shortened_to": t1_used, "shortened_from": t1}
+        o.time_start, o.time_end = t0, t1_used
+        case.value = theta
+        case.observables.update(subject="the camera", subject_class="camera", up=list(tracks.up))
+        case.answer = AnswerSpec(kind="angle", value=theta, unit="°", decimals=2,
+                                 options={"spread": option_spread(theta, p)})
+
+    def diagnose(self, case: Case) -> None:
+        p, conv, legacy = case.params, case.state["conv"], case.legacy
+        angle = legacy is not None and (legacy.is_angle or legacy.unit == "")
+        dec = legacy.decimals if angle else 2
+        tol = 0.5 * 10.0 ** -dec + float(p["angle_abs_tol_deg"])
+        case.rule = {"abs_tol": float(p["angle_abs_tol_deg"]), "rel_tol": 0.0,
+                     "text": f"a convention reproduces the legacy value within half a printed unit + "
+                             f"{float(p['angle_abs_tol_deg']):g} deg"}
+        diag: dict[str, Any] = {"conventions_deg": conv, "tolerance_deg": tol}
+        d = Diagnosis(False, evidence={"diagnosis": diag, "verdict_reason": VERDICT_REASON})
+        if angle:
+            res = {k: float(abs(V.wrap_degrees(float(legacy.value) - v))) for k, v in conv.items()}
+            repro = sorted((k for k, r in res.items() if r <= tol), key=lambda k: res[k])
+            diag.update({"legacy_deg": float(legacy.value), "residuals_deg": res, "reproduced_by": repro})
+            if any(k in repro for k in LEGACY_OPERATORS):
+                d.defects.append("orientation_xz_plane")
+        else:
+            diag["legacy_detail_error"] = case.legacy_problem or f"Answer Detail is not an angle: {case.detail!r}"
+        if p.get("invariance_check", True):
+            s = case.state
+            diag["invariance_error_deg"] = invariance_error(s["tracks"], s["t0"], s["t1"], p,
+                                                            row_rng(int(p.get("seed", 0) or 0), case.outcome.key,
+                                                                    "invariance"))
+        case.diagnosis = d
+
+    def rewrite(self, case: Case) -> str:
+        s = case.state
+        return rewrite_question(s["t0"], s["t1_used"], s["t1"] if s["shortened"] else None)
 
 
-def audit_row(row: dict, ctx: SourceContext, p: dict, seed: int = 0) -> Outcome:
-    """Reconstruct, diagnose and rewrite one legacy orientation row."""
-    o = Outcome(row=int(row["row"]), key=row["Legacy Row Key"], task=TASK, source=str(row["Source"]),
-                video=str(row["Video"]), legacy_id=row.get("ID"), verdict="re-contracted",
-                legacy_detail=str(row.get("Answer Detail")))
-    c = parse_question(row, video_map=ctx.video_map)
-    contract = c.to_dict()
-    o.contract = contract
-    if c.sequence is None:
-        return o.exclude("unsupported_question", problem="video maps to no source sequence")
-    t0, t1 = (float(x) for x in (c.times if len(c.times) == 2 else [row["time_start"], row["time_end"]]))
-    clamped = None
-    try:
-        tracks = camera_tracks(ctx, c.source, c.sequence, c.camera, p)
-        t0, t1, clamped = clamp_to_track(tracks.cv, t0, t1, float(p["end_slack_s"]))
-        theta, ev = G.heading_change(tracks.cv, t0, t1, tracks.forward, tracks.up, rule=str(p["pose_rule"]),
-                                     tol=float(p["time_tol_s"]))
-        conv = conventions(tracks, t0, t1, p)
-    except (InputError, ContractError) as e:
-        if isinstance(e, InputError):  # damaged or missing source files: one clear error for the run
-            raise
-        msg = str(e)
-        reason = "invalid_pose_at_time" if "invalid" in msg.lower() else "unsupported_question"
-        return o.exclude(reason, error=msg, t0=t0, t1=t1)
-    t1_used = float(ev["t1_used"])
-    shortened = ev.get("shortened_to") is not None
-    o.source_files = list(tracks.files)
-    o.frames = {"t0": t0, "t1": t1_used, "indices_t0": ev["indices_t0"], "indices_t1": ev["indices_t1"]}
-    if "frames" in tracks.cv.meta:
-        fr = tracks.cv.meta["frames"]
-        o.frames["source_frames"] = [int(fr[ev["indices_t0"][0]]), int(fr[ev["indices_t1"][-1]])]
-    if "micros" in tracks.cv.meta:
-        mi = tracks.cv.meta["micros"]
-        o.frames["frame_timestamp_micros"] = [int(mi[ev["indices_t0"][0]]), int(mi[ev["indices_t1"][-1]])]
-    o.transform_chain = ("theta = atan2(u.(h0 x h1), h0.h1), h = horizontal projection of R(t) a; "
-                         + tracks.axes_note)
-    legacy, dec, err = _parse_legacy(row)
-    tol = 0.5 * 10.0 ** -dec + float(p["angle_abs_tol_deg"])
-    diag: dict[str, Any] = {"conventions_deg": conv, "tolerance_deg": tol}
-    if legacy is not None:
-        res = {k: float(abs(V.wrap_degrees(legacy - v))) for k, v in conv.items()}
-        repro = sorted((k for k, r in res.items() if r <= tol), key=lambda k: res[k])
-        diag.update({"legacy_deg": legacy, "residuals_deg": res, "reproduced_by": repro})
-        if any(k in repro for k in LEGACY_OPERATORS):
-            o.defects.append("orientation_xz_plane")
-    else:
-        diag["legacy_detail_error"] = err
-    if p.get("invariance_check", True):
-        diag["invariance_error_deg"] = invariance_error(tracks, t0, t1, p, row_rng(seed, o.key, "invariance"))
-    o.evidence["diagnosis"] = diag
-    o.evidence["heading"] = {"value_deg": float(theta), "forward_t0": ev["forward_t0"],
-                             "forward_t1": ev["forward_t1"], "up": list(tracks.up), "world": tracks.world}
-    if clamped:
-        o.evidence["clamped_to_track"] = clamped
-    if shortened:
-        o.evidence["shortened_to"] = float(ev["shortened_to"])
-        o.evidence["shortened_from"] = float(ev["shortened_from"])
-        o.evidence["shortening_reason"] = ev.get("reason")
-    o.verdict = verdict_for(False, None)
-    o.evidence["verdict_reason"] = ("the legacy question names no plane or convention; the value is derived as "
-                                    "the gravity-horizontal heading change of the optical axis")
-    contract.update({"times": [t0, t1_used], "time_stated": True, "unit": "deg",
-                     "frame": f"{tracks.world}; gravity-horizontal plane",
-                     "entity": {"kind": "camera", "camera": c.camera}})
-    if shortened:
-        contract["params"] = {**contract.get("params", {}), "shortened_to": t1_used, "shortened_from": t1}
-    o.contract = contract
-    o.question = rewrite_question(t0, t1_used, t1 if shortened else None)
-    o.time_start, o.time_end = t0, t1_used
-    o.answer = AnswerSpec(kind="angle", value=float(theta), unit="°", decimals=2,
-                          options={"spread": option_spread(theta, p)})
-    return o
-
-
-def audit(rows: pd.DataFrame, ctx: SourceContext, params: dict) -> list[Outcome]:
-    """One :class:`~resti_lib.tasks.base.Outcome` per legacy orientation row."""
-    p = task_params(params)
-    seed = int(params.get("seed", 0) or 0)
-    return [audit_row(r, ctx, p, seed) for r in rows.to_dict("records")]
+def legacy_operator_axes(tracks: Tracks, t0: float, t1: float, p: dict) -> dict:
+    """The source-axes camera column 2 at both ends (what the legacy X-Z operator projects), for the
+    endpoint figure."""
+    rule, tol = str(p["pose_rule"]), float(p["time_tol"])
+    T0, _ = G.pose_at(tracks.src, t0, rule, tol)
+    T1, _ = G.pose_at(tracks.src, t1, rule, tol)
+    return {"column2_t0": T0[:3, 2].tolist(), "column2_t1": T1[:3, 2].tolist()}
 
 
 # ===================================================================================== tables
@@ -357,7 +357,7 @@ def _arc(ax, a0: float, a1: float, r: float, color: str, label: str) -> None:
             va="center")
 
 
-def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = None) -> Path | None:
+def figure_endpoints(run, path: str | Path, *, row: int | None = None) -> Path | None:
     """Endpoint forward vectors of one row on the vertical X-Z plane and on the horizontal plane.
 
     (a) the source-axes camera column the legacy operator uses, projected on raw-world X-Z, with
@@ -381,17 +381,12 @@ def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = N
     if not outs:
         return None
     o = outs[0]
-    p = task_params(params)
-    ctx = SourceContext.from_params(params)
-    c = parse_question(run.legacy[run.legacy["row"] == o.row].iloc[0].to_dict(), video_map=ctx.video_map)
-    tracks = camera_tracks(ctx, c.source, c.sequence, c.camera, p)
-    T0, _ = G.pose_at(tracks.src, o.time_start, str(p["pose_rule"]), float(p["time_tol_s"]))
-    T1, _ = G.pose_at(tracks.src, o.time_end, str(p["pose_rule"]), float(p["time_tol_s"]))
     d = o.evidence["diagnosis"]
     conv = d["conventions_deg"]
     fig, axes = plt.subplots(1, 2, figsize=(8.4, 4.0))
     # (a) vertical plane: components (x, z) of source column 2; angle positive from +Z toward +X
-    a, b = T0[:3, 2], T1[:3, 2]
+    axes_ev = o.evidence["legacy_operator_axes"]
+    a, b = np.array(axes_ev["column2_t0"]), np.array(axes_ev["column2_t1"])
     ax = axes[0]
     for v, color, lab in ((a, "#2c7fb8", "start"), (b, "#d4a017", "end")):
         w = np.array([v[0], v[2]])
@@ -405,7 +400,7 @@ def figure_endpoints(run, params: dict, path: str | Path, *, row: int | None = N
     ax.set_ylabel("world Z (vertical)")
     ax.set_title("(a) legacy: source camera column 2 on raw-world X-Z", fontsize=8, loc="left")
     # (b) horizontal plane: optical forward projected orthogonal to up (world X-Y when up = +Z)
-    up = np.asarray(tracks.up)
+    up = np.asarray(o.evidence["heading"]["up"])
     e1 = np.cross(up, [0.0, 1.0, 0.0]) if abs(up[1]) < 0.9 else np.cross(up, [1.0, 0.0, 0.0])
     e1 = np.array([1.0, 0.0, 0.0]) if np.allclose(up, [0, 0, 1]) else e1 / np.linalg.norm(e1)
     e2 = np.cross(up, e1)

@@ -9,8 +9,9 @@ Contract per source (stated in every rewritten question and in the provenance)
 - Omni6DPose: world = the OpenCV camera frame at the premise time (t = 0 s, the identity);
   ``P(t) = T_c0<-cam(t)`` after the stored camera convention is verified against the objects.
 
-The pose at an asked time is the source sample nearest to it (``pose_rule``), within half the
-median sampling interval; an invalid pose there is an exclusion (``invalid_pose_at_time``).
+The pose at an asked time is the measure operator ``pose``: the source sample nearest to it
+(``pose_rule: nearest``), within half the median sampling interval; an invalid pose there is an
+exclusion (``invalid_pose_at_time``).
 
 Diagnosis
 ---------
@@ -33,33 +34,27 @@ Options: :func:`resti_lib.options.builders.pose_options` with rotations drawn ab
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
 
 from .. import values as V
-from ..adjudicate import Rule, same_quantity_agrees, verdict_for
-from ..contract import parse_question
+from ..adjudicate import Diagnosis, Rule, same_quantity_agrees
+from ..contract import NUM, Contract, base_contract, find_pose_json
 from ..errors import ContractError, InputError
 from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import invert_T
 from ..geometry.trajectory import PoseTrack
-from .base import AnswerSpec, Outcome
+from ..measure.motion import sample_window
+from . import register_task
+from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
 TASK = "Pose Estimation"
-
-#: Defaults of the task parameters (``params/pose.yaml`` overrides them).
-DEFAULTS = {
-    "pose_rule": "nearest",
-    "compare_abs_tol": 0.001,
-    "match_abs_tol": 0.001,
-    "trans_sigma_frac": 0.5,
-    "trans_sigma_floor": {"ScanNet": 0.25, "Waymo": 2.0, "Omni6DPose": 0.05},
-    "omni6d_up": [0.0, 0.0, 1.0],
-    "decimals": 2,
-}
 
 WORLD = {
     "ScanNet": "ScanNet raw scan coordinate frame",
@@ -69,14 +64,10 @@ WORLD = {
 CHAIN = {
     "ScanNet": "P(t) = T_raw<-cam(t) (.sens camera_to_world, OpenCV axes)",
     "Waymo": "P(t) = world_from_vehicle(t) @ extrinsic(camera) @ T_waymo_cam<-cv_cam",
-    "Omni6DPose": "P(t) = T_scene<-cam(t0)^-1 @ T_scene<-cam(t) (stored convention verified, OpenCV axes)",
+    "Omni6DPose": "P(t) = T_c0<-cam(t0)^-1 @ T_c0<-cam(t), T_c0<-cam(t) = T_c0<-obj T_cam(t)<-obj^-1 over the "
+                  "static objects (OpenCV axes)",
 }
 AXES = "OpenCV camera axes (+X right, +Y down, +Z forward)"
-
-
-def _p(params: dict, key: str):
-    v = params.get(key)
-    return DEFAULTS[key] if v is None else v
 
 
 def _vec(T: np.ndarray) -> np.ndarray:
@@ -91,29 +82,35 @@ def _as_pose(T: np.ndarray, decimals: int) -> V.Pose:
     return V.Pose(t=tuple(T[:3, 3]), R=tuple(tuple(r) for r in T[:3, :3]), text="", decimals=decimals)
 
 
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation matrix nearest (Frobenius) to ``R``: ``U V^T`` of its SVD, the sign fixed so that
+    the determinant is +1. A printed matrix rounded to two decimals is not orthonormal."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, float))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
 def rotation_angle_deg(R0: np.ndarray, R1: np.ndarray) -> float:
-    """Angle of the relative rotation ``R0^T R1`` in degrees."""
-    c = (np.trace(np.asarray(R0).T @ np.asarray(R1)) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    """Angle of the relative rotation ``R0^T R1`` in degrees, both first projected onto SO(3)
+    (:func:`nearest_rotation`): two matrices that agree to rounding give about 0 degrees, not the
+    arccos of a trace pushed off 3 by non-orthonormal entries."""
+    rel = Rotation.from_matrix(nearest_rotation(R0)).inv() * Rotation.from_matrix(nearest_rotation(R1))
+    return float(np.degrees(rel.magnitude()))
 
 
-# ------------------------------------------------------------------------------------ operators
-
-
-def time_tolerance(track: PoseTrack) -> float:
-    """Half the median sampling interval of a track (seconds): the nearest-sample window."""
-    return 0.5 * float(np.median(np.diff(track.times))) if len(track) > 1 else G.DEFAULT_TOL
+# ------------------------------------------------------------------------------------ diagnosis
 
 
 def pose_at_time(track: PoseTrack, t: float, rule: str = "nearest") -> tuple[np.ndarray, dict]:
-    """``P(t)`` by ``rule`` within :func:`time_tolerance`; evidence names the sample and its time.
+    """``P(t)`` by ``rule`` within half the median sampling interval (the ``pose`` operator's window);
+    evidence names the sample and its time.
 
     Raises
     ------
     ContractError
         Time outside the track, no sample within the tolerance, or an invalid pose there.
     """
-    tol = time_tolerance(track)
+    tol = sample_window(track)
     T, ev = G.pose_at(track, float(t), rule, tol)
     ev["tol_s"] = tol
     for key in ("frames", "micros"):
@@ -191,8 +188,12 @@ def resolve_premise(track: PoseTrack, premise: dict | None, candidates: list[flo
         if r <= tol + 1e-12:
             return {"time": c, "how": "stated" if c == cands[0] else "time_start", "residual": r,
                     "reproduced": True, "tried": tried}
-    s = timestamp_search(track, P.matrix, cands[0], decimals=decimals, abs_tol=abs_tol, rule=rule) \
-        if np.isfinite(cands[0]) else None
+    try:  # the search compares against the asked sample, which may be invalid (failed tracking)
+        s = timestamp_search(track, P.matrix, cands[0], decimals=decimals, abs_tol=abs_tol, rule=rule) \
+            if np.isfinite(cands[0]) else None
+    except ContractError as e:
+        s = None
+        tried.append({"t": cands[0], "search_error": str(e)})
     if s is not None and s["best_residual"] <= tol + 1e-12:
         return {"time": s["best_t"], "how": "search", "residual": s["best_residual"], "reproduced": True,
                 "tried": tried}
@@ -218,118 +219,136 @@ def question_text(source: str, t0: float, t1: float, premise_text: str | None) -
 
 def trans_sigma(source: str, displacement_m: float, params: dict) -> float:
     """Distractor translation spread: ``max(floor[source], trans_sigma_frac * displacement)``."""
-    floors = {**DEFAULTS["trans_sigma_floor"], **(params.get("trans_sigma_floor") or {})}
-    return float(max(float(floors[source]), float(_p(params, "trans_sigma_frac")) * float(displacement_m)))
+    return float(max(float(params["trans_sigma_floor"][source]), float(params["trans_sigma_frac"]) * float(displacement_m)))
 
 
-def _new(r: dict) -> Outcome:
-    return Outcome(row=int(r["row"]), key=r["Legacy Row Key"], task=TASK, source=str(r["Source"]),
-                   video=str(r["Video"]), legacy_id=r.get("ID"), verdict="retained",
-                   legacy_detail=str(r.get("Answer Detail")))
-
-
-def _track(ctx, vs, params: dict) -> tuple[PoseTrack, tuple, list[str]]:
-    """The camera track of a video, the world up in its frame and the files read."""
-    if vs.source == "ScanNet":
-        sc = ctx.scannet(vs.sequence)
+def camera_track(ctx, c: Contract, params: dict) -> tuple[PoseTrack, tuple, list[str]]:
+    """The camera track of the contract's sequence, the world up in its frame and the files read."""
+    if c.source == "ScanNet":
+        sc = ctx.scannet(c.sequence)
         tr = sc.camera_track()
         return tr, (0.0, 0.0, 1.0), [tr.source, str(sc.meta_path)]
-    if vs.source == "Waymo":
-        seg = ctx.waymo(vs.sequence)
-        if vs.camera is None:
+    if c.source == "Waymo":
+        seg = ctx.waymo(c.sequence)
+        if c.camera is None:
             raise InputError("Waymo video without a camera number", field="Video")
-        tr = seg.camera_track(vs.camera)
+        tr = seg.camera_track(c.camera)
         return tr, (0.0, 0.0, 1.0), [str(seg.path("vehicle_pose")), str(seg.path("camera_calibration"))]
-    rp = ctx.rope(vs.sequence)
+    rp = ctx.rope(c.sequence)
     tr = rp.camera_track(rebase=True)
-    up = tuple(float(x) for x in rp.world_up_in_track_frame(np.asarray(_p(params, "omni6d_up"), float)))
+    up = tuple(float(x) for x in rp.world_up_in_track_frame(np.asarray(params["omni6d_up"], float)))
     return tr, up, [str(rp.dir), str(rp.obj_meta_path)]
 
 
-def audit_row(r: dict, ctx, params: dict) -> Outcome:
-    """One legacy row -> Outcome (see :func:`audit`)."""
-    o = _new(r)
-    dec = int(_p(params, "decimals"))
-    rule = str(_p(params, "pose_rule"))
-    mtol = float(_p(params, "match_abs_tol"))
-    c = parse_question(r, video_map=ctx.video_map)
-    vs = ctx.locate(r["Video"])
-    src = vs.source
-    track, up, files = _track(ctx, vs, params)
-    o.source_files = files
-    o.transform_chain = CHAIN[src]
-    if "time" in c.missing:
-        o.defects.append("pose_time_omitted")
-    o.evidence["legacy_missing"] = list(c.missing)
-    t1 = float(c.times[0]) if c.times else float(r["time_end"])
-    stated_t0 = float(c.params.get("premise_time", r.get("time_start") or 0.0))
-    cands = [stated_t0, float(r.get("time_start") or 0.0)]
-    prem = resolve_premise(track, c.params.get("premise_pose"), cands, decimals=dec, abs_tol=mtol, rule=rule)
-    t0 = float(prem["time"])
-    o.evidence["premise"] = prem
-    try:
-        T0, e0 = pose_at_time(track, t0, rule)
-        T1, e1 = pose_at_time(track, t1, rule)
-    except ContractError as e:
-        return o.exclude("invalid_pose_at_time", error=str(e), premise_time=t0, target_time=t1)
-    o.frames = {"premise": e0, "target": e1}
-    if src == "Omni6DPose" and not np.allclose(T0, np.eye(4), atol=1e-9):
-        # the reference is the camera at the premise time: re-base the whole track on it
-        base = invert_T(T0)
-        track = PoseTrack(track.times, base @ track.T, name=track.name + " (re-based at the premise time)",
-                          source=track.source, valid=track.valid, meta=track.meta)
-        up = tuple(float(x) for x in base[:3, :3] @ np.asarray(up, float))
-        T0, T1 = base @ T0, base @ T1
-    compact = src == "Waymo"
-    disp = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
-    rot = rotation_angle_deg(T0[:3, :3], T1[:3, :3])
-    same_time = abs(e1["times"][0] - e0["times"][0]) <= e0["tol_s"]
-    same_print = V.format_pose(T0, dec, compact=compact) == V.format_pose(T1, dec, compact=compact)
-    c.entity = {"kind": "camera", **({"camera": int(vs.camera)} if vs.camera is not None else {})}
-    c.times = [t1]
-    c.params = {k: v for k, v in c.params.items() if k != "premise_pose"}
-    c.params.update({"premise_time": t0, "matrix": "camera-to-world", "axes": AXES})
-    c.frame = WORLD[src]
-    c.unit = "m"
-    o.contract = c.to_dict()
-    if same_time or same_print:
-        o.defects.append("premise_equals_answer")
-        return o.exclude("premise_equals_target", premise_time=t0, target_time=t1, displacement_m=disp,
-                         rotation_deg=rot, same_time=bool(same_time), printed_identical=bool(same_print))
-    comparable, agrees = True, None
-    try:
-        legacy = V.parse(r.get("Answer Detail"), row=o.row, field="Answer Detail")
-        if not isinstance(legacy, V.Pose):
-            raise InputError("Answer Detail is not a pose")
-    except InputError as e:
-        legacy, comparable = None, False
-        o.evidence["legacy_unreadable"] = str(e)
-    if legacy is not None:
-        rule_c = Rule(abs_tol=float(_p(params, "compare_abs_tol")))
+@register_task
+class Pose(Task):
+    name = TASK
+    params_name = "pose"
+    legacy_kind = V.Pose
+    operators = ("pose",)
+    setting_overrides = ("pose_rule",)  # the nearest sample, not interpolation
+    missing_defects: ClassVar[dict] = {"time": "pose_time_omitted"}
+
+    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
+        c, q = base_contract(row, "pose", video_map=video_map)
+        ql = q.lower()
+        t0, t1 = float(row.get("time_start") or 0.0), float(row.get("time_end") or 0.0)
+        c.entity = {"kind": "camera"}
+        premise = find_pose_json(q)
+        all_t = [float(x) for x in re.findall(rf"t\s*=\s*({NUM})\s*s", q)]
+        if len(all_t) >= 2:
+            c.params["premise_time"], c.times, c.time_stated = all_t[0], [all_t[-1]], True
+        elif len(all_t) == 1:
+            c.params["premise_time"] = 0.0 if "initial" in ql else t0
+            c.times, c.time_stated = [all_t[0]], True
+        else:
+            c.params["premise_time"], c.times = (0.0 if "initial" in ql else t0), [t1]
+            c.miss("time")
+        if premise is not None:
+            c.params["premise_pose"] = premise
+        if not any(w in ql for w in ("world coordinate", "coordinate frame", "same coordinate", "opencv")):
+            c.miss("frame")
+        return c
+
+    def reconstruct(self, case: Case) -> None:
+        c, r, p, o = case.contract, case.row, case.params, case.outcome
+        dec, rule, mtol = int(p["decimals"]), str(p["pose_rule"]), float(p["match_abs_tol"])
+        src = c.source
+        track, up, files = camera_track(case.ctx, c, p)
+        case.provenance(files=files, chain=CHAIN[src])
+        if src == "Omni6DPose":  # where the camera motion comes from (static objects, left-out movers)
+            o.evidence["camera_track"] = track.meta.get("evidence")
+        o.evidence["legacy_missing"] = list(c.missing)
+        t1 = float(c.times[0]) if c.times else float(r["time_end"])
+        stated_t0 = float(c.params.get("premise_time", r.get("time_start") or 0.0))
+        cands = [stated_t0, float(r.get("time_start") or 0.0)]
+        prem = resolve_premise(track, c.params.get("premise_pose"), cands, decimals=dec, abs_tol=mtol, rule=rule)
+        t0 = float(prem["time"])
+        o.evidence["premise"] = prem
+        try:
+            m0 = case.measure("pose", {"kind": "camera"}, [t0])
+            m1 = case.measure("pose", {"kind": "camera"}, [t1])
+        except ContractError as e:
+            raise Exclude("invalid_pose_at_time", error=str(e), premise_time=t0, target_time=t1) from None
+        T0, T1 = np.asarray(m0.value, float), np.asarray(m1.value, float)
+        e0, e1 = m0.evidence, m1.evidence
+        o.frames = {"premise": e0, "target": e1}
+        if src == "Omni6DPose" and not np.allclose(T0, np.eye(4), atol=1e-9):
+            # the reference is the camera at the premise time: re-base the whole track on it
+            base = invert_T(T0)
+            track = PoseTrack(track.times, base @ track.T, name=track.name + " (re-based at the premise time)",
+                              source=track.source, valid=track.valid, meta=track.meta)
+            up = tuple(float(x) for x in base[:3, :3] @ np.asarray(up, float))
+            T0, T1 = base @ T0, base @ T1
+        compact = src == "Waymo"
+        disp = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
+        rot = rotation_angle_deg(T0[:3, :3], T1[:3, :3])
+        same_time = abs(e1["times"][0] - e0["times"][0]) <= e0["tol_s"]
+        same_print = V.format_pose(T0, dec, compact=compact) == V.format_pose(T1, dec, compact=compact)
+        c.entity = {"kind": "camera", **({"camera": int(c.camera)} if c.camera is not None else {})}
+        c.times = [t1]
+        c.params = {k: v for k, v in c.params.items() if k != "premise_pose"}
+        c.params.update({"premise_time": t0, "matrix": "camera-to-world", "axes": AXES})
+        c.frame = WORLD[src]
+        c.unit = "m"
+        if same_time or same_print:
+            o.defects.append("premise_equals_answer")
+            raise Exclude("premise_equals_target", premise_time=t0, target_time=t1, displacement_m=disp,
+                          rotation_deg=rot, same_time=bool(same_time), printed_identical=bool(same_print))
+        sig = trans_sigma(src, disp, p)
+        o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot, "trans_sigma_m": sig}
+        o.prompt = ""
+        o.time_start, o.time_end = min(t0, t1), max(t0, t1)
+        case.state.update(track=track, T0=T0, t0=t0, t1=t1, compact=compact)
+        case.value = T1
+        case.observables.update(subject="the camera", subject_class="camera", premise=T0, premise_time=t0,
+                                target_time=t1, up=list(up))
+        case.answer = AnswerSpec(kind="pose", value=T1, decimals=dec,
+                                 options={"trans_sigma": sig, "up": list(up), "compact": compact})
+
+    def diagnose(self, case: Case) -> None:
+        p, legacy, T1 = case.params, case.legacy, case.value
+        rule_c = Rule(abs_tol=float(p["compare_abs_tol"]))
+        case.rule = rule_c.to_dict()
+        if legacy is None:
+            case.diagnosis = Diagnosis(False)
+            return
         agrees = same_quantity_agrees(legacy, _as_pose(T1, legacy.decimals), rule_c)
-        search = timestamp_search(track, legacy.matrix, t1, decimals=legacy.decimals, abs_tol=mtol, rule=rule)
-        o.evidence["comparison"] = {"rule": rule_c.describe(), "agrees": bool(agrees),
-                                    "max_abs_entry_diff": float(np.abs(legacy.vector() - _vec(T1)).max())}
-        o.evidence["timestamp_search"] = search
+        search = timestamp_search(case.state["track"], legacy.matrix, case.state["t1"], decimals=legacy.decimals,
+                                  abs_tol=float(p["match_abs_tol"]), rule=str(p["pose_rule"]))
+        d = Diagnosis(True, bool(agrees), evidence={
+            "comparison": {"rule": rule_c.describe(), "agrees": bool(agrees),
+                           "max_abs_entry_diff": float(np.abs(legacy.vector() - _vec(T1)).max())},
+            "timestamp_search": search})
         if not agrees:
-            if src == "Waymo" and search["wrong_timestamp"]:
-                o.defects.append("waymo_pose_wrong_timestamp")
-            else:
-                o.defects.append("value_mismatch")
-    o.verdict = verdict_for(comparable, agrees)
-    o.question = question_text(src, t0, t1, V.format_pose(T0, dec, compact=compact))
-    o.prompt = ""
-    o.time_start, o.time_end = min(t0, t1), max(t0, t1)
-    sig = trans_sigma(src, disp, params)
-    o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot, "trans_sigma_m": sig}
-    o.answer = AnswerSpec(kind="pose", value=T1, decimals=dec,
-                          options={"trans_sigma": sig, "up": list(up), "compact": compact})
-    return o
+            d.defects.append("waymo_pose_wrong_timestamp" if case.source == "Waymo" and search["wrong_timestamp"]
+                             else "value_mismatch")
+        case.diagnosis = d
 
-
-def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
-    """Task-module entry point: one :class:`Outcome` per legacy Pose Estimation row."""
-    return [audit_row(r, ctx, params) for r in rows.to_dict("records")]
+    def rewrite(self, case: Case) -> str:
+        s = case.state
+        return question_text(case.source, s["t0"], s["t1"],
+                             V.format_pose(s["T0"], int(case.params["decimals"]), compact=s["compact"]))
 
 
 # ---------------------------------------------------------------------------------- reporting
@@ -391,17 +410,15 @@ def plot_translation_change(table: pd.DataFrame, path: str | Path, *, title: str
 
 
 __all__ = [
-    "DEFAULTS",
     "TASK",
-    "audit",
-    "audit_row",
+    "Pose",
     "diagnosis_table",
+    "nearest_rotation",
     "plot_translation_change",
     "pose_at_time",
     "question_text",
     "resolve_premise",
     "rotation_angle_deg",
-    "time_tolerance",
     "timestamp_search",
     "trans_sigma",
     "wrong_timestamp_summary",

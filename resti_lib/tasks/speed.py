@@ -22,10 +22,13 @@ The clarified question names the statistic; the row is *retained* when the legac
 under it and *corrected* (``value_mismatch``) otherwise.
 
 ``acceleration``
-    Magnitude of the mean acceleration ``|v(t1) - v(t0)| / (t1 - t0)``. Velocity estimator (stated
-    in the question and the evidence): for Waymo objects the LiDAR box's annotated velocity
-    (vehicle frame, rotated into the world by the frame's vehicle pose, linear between frames);
-    otherwise central differences of the positions (:func:`resti_lib.geometry.trajectory.acceleration`).
+    Magnitude of the mean acceleration ``|v(t1) - v(t0)| / (t1 - t0)`` (measure operator
+    ``acceleration``). Velocity estimator (stated in the question and the evidence): for Waymo
+    objects the LiDAR box's annotated velocity (vehicle frame, rotated into the world by the frame's
+    vehicle pose, linear between frames); otherwise central differences of the positions.
+
+The per-source decision is :func:`resti_lib.tasks.motion.reading_per_source`, shared with the
+"how far has X traveled" rows of Displacement & Path Length.
 """
 
 from __future__ import annotations
@@ -36,102 +39,41 @@ import numpy as np
 import pandas as pd
 
 from .. import values as V
-from ..adjudicate import verdict_for
-from ..contract import parse_question
+from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
+from ..contract import Contract
 from ..errors import ContractError
-from ..geometry import trajectory as G
-from .base import AnswerSpec, Outcome
-from .motion import ambiguous_subject, camera_subject, source_frames, waymo_object_subject
-from .referents import SceneView
-from .scalar_audit import (
-    Excluded,
-    agrees_si,
-    compare,
-    new_outcome,
-    question_defects,
-    rule_for,
-    subject_phrase,
-    value_table,
+from ..measure.motion import EST_STORED
+from ..referents import SceneView
+from . import register_task
+from .base import AnswerSpec, Case, Exclude, Task
+from .motion import (
+    ambiguous_subject,
+    camera_subject,
+    read_motion_contract,
+    reading_per_source,
+    row_reading,
+    source_frames,
+    waymo_object_subject,
 )
+from .scalar_audit import rule_for, set_rule, subject_phrase, value_table
 
 TASK = "Speed & Acceleration"
 STATISTICS = {
     "average_velocity": "magnitude of average velocity = endpoint displacement / elapsed time",
     "average_speed": "average speed = path length / elapsed time",
 }
-EST_STORED = ("mean acceleration |v(t1) - v(t0)| / (t1 - t0); v = the LiDAR box's annotated velocity (vehicle "
-              "frame) rotated into the world frame by the frame's vehicle pose, linear between frames")
-EST_CENTRAL = ("mean acceleration |v(t1) - v(t0)| / (t1 - t0); v at a sample by central differences of the "
-               "positions (one-sided at a track end), linear between samples")
+READINGS = {"average_velocity": "velocity", "average_speed": "speed"}
+UNITS = {"average_velocity": "m/s", "average_speed": "m/s", "acceleration": "m/s²"}
 
 
-# ------------------------------------------------------------------------------------ operators
-
-
-def rates(track, t0: float, t1: float, params: dict) -> dict:
-    """Displacement / Δt and path / Δt of a track over ``[t0, t1]`` (m/s) with the geometry evidence."""
-    tol = float(params.get("time_tol", 1e-3))
-    rule = str(params.get("pose_rule", "linear"))
-    v, ev_v = G.average_velocity(track, t0, t1, rule=rule, tol=tol)
-    s, ev_s = G.average_speed(track, t0, t1, rule=rule, tol=tol, gaps=str(params.get("path_gaps", "error")))
-    return {"average_velocity": v, "average_speed": s, "t1_used": float(ev_v.get("t1_used", t1)),
-            "dt_s": ev_v["dt_s"], "displacement_m": ev_v["displacement_m"], "path_length_m": ev_s["path_length_m"],
-            "shortened_to": ev_v.get("shortened_to")}
-
-
-def stored_velocity_acceleration(seg, track, t0: float, t1: float) -> tuple[float, dict]:
-    """Mean acceleration from a Waymo track's annotated box velocities (see module docstring).
-
-    Raises ContractError when a needed velocity is missing (NaN) or a time lies outside the track.
-    """
-    spd = np.asarray(track.meta.get("speed"), float)
-    if spd.ndim != 2 or spd.shape[0] != len(track):
-        raise ContractError(f"{track.name}: no annotated velocities")
-    ego = seg.ego_track()
-    k = np.searchsorted(ego.meta["micros"], track.meta["micros"])
-    R = ego.T[np.clip(k, 0, len(ego) - 1), :3, :3]
-    v_world = np.einsum("nij,nj->ni", R, spd)
-    times = track.times
-
-    def v_at(t):
-        if t < times[0] - 1e-3 or t > times[-1] + 1e-3:
-            raise ContractError(f"{track.name}: t={t} s outside the track [{times[0]:.3f}, {times[-1]:.3f}] s")
-        j = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1))
-        a = float(np.clip((t - times[j - 1]) / (times[j] - times[j - 1]), 0.0, 1.0))
-        v = (1 - a) * v_world[j - 1] + a * v_world[j]
-        if not np.isfinite(v).all():
-            raise ContractError(f"{track.name}: annotated velocity missing near t={t} s")
-        return v, [j - 1, j]
-
-    v0, i0 = v_at(t0)
-    v1, i1 = v_at(t1)
-    acc = (v1 - v0) / (t1 - t0)
-    return float(np.linalg.norm(acc)), {"estimator": EST_STORED, "v_t0": v0.tolist(), "v_t1": v1.tolist(),
-                                        "samples_t0": i0, "samples_t1": i1, "vector": acc.tolist(),
-                                        "dt_s": t1 - t0}
-
-
-def acceleration_value(view: SceneView, subj, t0: float, t1: float, params: dict) -> tuple[float, dict]:
-    """The acceleration of a subject: annotated velocities for Waymo objects, else central differences."""
-    tol = float(params.get("time_tol", 1e-3))
-    if view.source == "Waymo" and subj.kind == "object" and params.get("acceleration_estimator",
-                                                                        "annotated_velocity") == "annotated_velocity":
-        try:
-            a, ev = stored_velocity_acceleration(view.seq, subj.track, t0, t1)
-            try:
-                ev["central_difference_check"] = G.acceleration(subj.track, t0, t1, tol=tol)[0]
-            except ContractError as e:
-                ev["central_difference_check"] = str(e)
-            return a, ev
-        except ContractError as e:
-            fallback = str(e)
-        a, ev = G.acceleration(subj.track, t0, t1, tol=tol)
-        ev["note"] = f"annotated velocities unusable ({fallback}); central differences"
-        return a, ev
-    return G.acceleration(subj.track, t0, t1, tol=tol)
-
-
-# ------------------------------------------------------------------------------------- wording
+def operator_of(question: str) -> tuple[str, bool]:
+    """The operator a question names, and whether it leaves the statistic open ("average speed"
+    without path or displacement)."""
+    ql = " ".join(str(question).lower().split())
+    if "accelerat" in ql:
+        return "acceleration", False
+    op = "average_speed" if "speed" in ql else "average_velocity"
+    return op, "average speed" in ql and not any(w in ql for w in ("path", "displacement", "endpoint"))
 
 
 def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | None = None) -> str:
@@ -148,172 +90,119 @@ def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | 
             f"velocity divided by elapsed time with velocities from {how}? (unit: m/s²)")
 
 
-# ----------------------------------------------------------------------------------------- audit
+@register_task
+class Speed(Task):
+    name = TASK
+    params_name = "speed"
+    legacy_kind = V.Scalar
+    operators = ("average_velocity", "average_speed", "acceleration")
 
+    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
+        op, open_statistic = operator_of(row.get("Question", ""))
+        c, _ = read_motion_contract(row, video_map, op)
+        if open_statistic:
+            c.miss("statistic")
+        return c
 
-def _subject(view: SceneView, c: dict, r: dict, t0: float, t1: float, value_fn, unit: str, params: dict):
-    ent = c["entity"]
-    if ent.get("kind") == "camera":
-        return camera_subject(view)
-    if ent.get("kind") == "ambiguous":
-        return ambiguous_subject(view, ent.get("description"), t0, t1, value_fn, params)
-    if view.source == "Waymo":
-        return waymo_object_subject(view, ent.get("description"), t0, t1, value_fn, r.get("Answer Detail"), unit,
-                                    rule_for(params, view.source), params, presupposes_motion=True)
-    raise Excluded("unsupported_question", None, note=f"{view.source} objects are static annotations",
-                   phrase=ent.get("description"))
-
-
-def _finish(o: Outcome, r: dict, op: str, subj, value: float, unit: str, t0: float, t1: float, params: dict,
-            estimator: str | None = None) -> None:
-    ent = o.contract["entity"]
-    o.contract.update({"entity": {**ent, **subj.entity}, "operator": op, "times": [t0, t1], "unit": unit,
-                       "unit_stated": True, "frame": subj.track.name, "missing": [],
-                       "legacy_missing": list(o.contract.get("missing", []))})
-    o.contract["params"]["statistic"] = STATISTICS.get(op, estimator)
-    o.source_files = list(subj.files)
-    o.frames = source_frames(subj.track, t0, t1)
-    o.transform_chain = subj.evidence.get("transform_chain", "")
-    o.question = question_text(op, subject_phrase(subj, ent.get("description")), t0, t1, estimator)
-    o.prompt = r.get("Prompt") or ""
-    o.time_start, o.time_end = t0, t1
-    o.answer = AnswerSpec("scalar", value, unit, int(params.get("decimals", 2)))
-
-
-def _acceleration_row(o: Outcome, r: dict, c: dict, view: SceneView, t0: float, t1: float, params: dict) -> None:
-    unit = "m/s²"
-
-    def value_fn(track):
-        from .motion import Subject
-
-        return acceleration_value(view, Subject("object", track, "", {}, {}, []), t0, t1, params)[0]
-
-    subj = _subject(view, c, r, t0, t1, value_fn, unit, params)
-    value, aev = acceleration_value(view, subj, t0, t1, params)
-    cmp_ = compare(r.get("Answer Detail"), value, unit, rule_for(params, o.source))
-    o.verdict = verdict_for(cmp_["comparable"], cmp_["agrees"])
-    if o.verdict == "corrected":
-        o.defects.append("value_mismatch")
-    o.evidence.update({"operator": "acceleration", "value_si": value, "comparison": cmp_, "acceleration": aev,
-                       **subj.evidence})
-    # an interval ending in invalid poses was shortened: the question states the interval measured
-    _finish(o, r, "acceleration", subj, value, unit, t0, float(aev.get("t1_used", t1)), params,
-            aev.get("estimator"))
-
-
-def audit(rows: pd.DataFrame, ctx, params: dict) -> list[Outcome]:
-    """Speed & Acceleration outcomes, one per legacy row (module docstring)."""
-    views: dict = {}
-    outs: list[Outcome] = []
-    pending: list[tuple] = []  # rate rows waiting for the per-source statistic
-    for r in rows.to_dict("records"):
-        o = new_outcome(r, TASK)
-        outs.append(o)
-        c = parse_question(r, video_map=ctx.video_map).to_dict()
-        o.contract = c
-        o.defects = question_defects(c)
-        if len(c["times"]) != 2:
-            o.exclude("unsupported_question", question=r.get("Question"))
-            continue
-        t0, t1 = float(c["times"][0]), float(c["times"][1])
+    def reconstruct(self, case: Case) -> None:
+        c, params, r = case.contract, case.params, case.row
+        if len(c.times) != 2:
+            raise Exclude("unsupported_question", question=r.get("Question"))
+        t0, t1 = float(c.times[0]), float(c.times[1])
         if t1 <= t0:
-            o.defects.append("zero_length_interval")
-            o.exclude("zero_length_interval", t=[t0, t1], kind=c["operator"])
-            continue
-        video = str(r["Video"])
-        if video not in views:
-            views[video] = SceneView.open(ctx, video, params)
-        view = views[video]
+            case.outcome.defects.append("zero_length_interval")
+            raise Exclude("zero_length_interval", t=[t0, t1], kind=c.operator)
+        view = SceneView.open(case.ctx, str(r["Video"]), params)
+        rule = set_rule(case, rule_for(params, case.source))
+        ops = ("acceleration",) if c.operator == "acceleration" else ("average_velocity", "average_speed")
+
+        def value_fn(entity: dict) -> float:
+            return case.measure(c.operator, entity, [t0, t1]).value
+
+        ent = c.entity
         try:
-            if c["operator"] == "acceleration":
-                _acceleration_row(o, r, c, view, t0, t1, params)
-                continue
-            op = c["operator"]
-
-            def value_fn(track, op=op, t0=t0, t1=t1):
-                return rates(track, t0, t1, params)[op]
-
-            subj = _subject(view, c, r, t0, t1, value_fn, "m/s", params)
-            rr = rates(subj.track, t0, t1, params)
-        except Excluded as e:
-            e.apply(o)
-            continue
+            if ent.get("kind") == "camera":
+                subj = camera_subject(view)
+            elif ent.get("kind") == "ambiguous":
+                subj = ambiguous_subject(view, ent.get("description"), t0, t1, value_fn, params)
+            elif view.source == "Waymo":
+                subj = waymo_object_subject(view, ent.get("description"), t0, t1, value_fn, case.legacy,
+                                            UNITS[c.operator], rule, params, presupposes_motion=True)
+            else:
+                raise Exclude("unsupported_question", note=f"{view.source} objects are static annotations",
+                              phrase=ent.get("description"))
+            measured = {op: case.measure(op, subj.entity, [t0, t1]) for op in ops}
         except ContractError as e:
-            o.exclude("invalid_pose_at_time", t=[t0, t1], error=str(e))
-            continue
-        rule = rule_for(params, o.source)
-        detail = r.get("Answer Detail")
-        match = {k: agrees_si(detail, rr[k], "m/s", rule) for k in STATISTICS}
-        pending.append((o, r, c, subj, rr, match))
-    _adjudicate_rates(pending, params)
-    return outs
+            raise Exclude("invalid_pose_at_time", t=[t0, t1], error=str(e)) from None
+        case.state.update(subj=subj, measured=measured, t0=t0, t1=t1)
+        case.observables.update(subject=subject_phrase(subj, ent.get("description")),
+                                subject_class=subj.entity.get("label", subj.kind))
 
+    def diagnose_all(self, cases: list[Case]) -> None:
+        rates = [k for k in cases if k.contract.operator != "acceleration"]
+        match = {id(k): {op: agrees_scalar(k.legacy, k.state["measured"][op].value, "m/s", rule_for(k.params, k.source))
+                         for op in STATISTICS} for k in rates}
+        open_rows = [k for k in rates if "statistic" in k.contract.missing]
+        groups = reading_per_source([(k.source, match[id(k)]) for k in open_rows], READINGS,
+                                    str(cases[0].params["default_statistic"]) if cases else "average_velocity",
+                                    float(cases[0].params["mixed_share"]) if cases else 0.25)
+        for k in cases:
+            if k.contract.operator != "acceleration":
+                self._rate(k, match[id(k)], groups)
+            else:
+                self._acceleration(k)
 
-def construction_statistic(pending: list[tuple], default: str, mixed_share: float = 0.25) -> dict[str, dict]:
-    """Per source: the statistic of the legacy "average speed" rows (majority of the rows that match one).
-
-    A source is *mixed* when the minority statistic has at least ``mixed_share`` of the rows that
-    match exactly one; there each such row keeps its own statistic.
-    """
-    out: dict[str, dict] = {}
-    for o, _r, c, _s, _rr, match in pending:
-        if "statistic" not in c["missing"]:
-            continue
-        d = out.setdefault(o.source, {"n_rows": 0, "n_velocity_only": 0, "n_speed_only": 0, "n_both": 0,
-                                      "n_neither": 0})
-        d["n_rows"] += 1
-        key = {(True, False): "n_velocity_only", (False, True): "n_speed_only", (True, True): "n_both",
-               (False, False): "n_neither"}[(match["average_velocity"], match["average_speed"])]
-        d[key] += 1
-    for d in out.values():
-        lo, hi = sorted((d["n_velocity_only"], d["n_speed_only"]))
-        d["mixed"] = bool(hi and lo / (lo + hi) >= mixed_share)
-        if d["n_velocity_only"] > d["n_speed_only"]:
-            d["statistic"], d["decided_by"] = "average_velocity", "majority of discriminating rows"
-        elif d["n_speed_only"] > d["n_velocity_only"]:
-            d["statistic"], d["decided_by"] = "average_speed", "majority of discriminating rows"
+    def _rate(self, k: Case, match: dict, groups: dict) -> None:
+        defects, extra = [], {}
+        if "statistic" in k.contract.missing:
+            g = groups[k.source]
+            op, determined, rev = row_reading(match, g)
+            if op == "average_velocity" and determined:
+                defects = ["statistic_unnamed", "speed_is_displacement_over_time"]
+            extra = {"construction_statistic": {"source": k.source, **g}, **rev}
         else:
-            d["statistic"], d["decided_by"] = default, "undetermined: params default_statistic"
-    return out
+            op = k.contract.operator
+        mv, ms = k.state["measured"]["average_velocity"], k.state["measured"]["average_speed"]
+        m = k.state["measured"][op]
+        ev_v = mv.evidence
+        value = m.value
+        cmp = compare_scalar(k.legacy, value, "m/s", rule_for(k.params, k.source))
+        d = Diagnosis.from_comparison(
+            cmp, operator=op, value_si=value, statistic=STATISTICS[op],
+            hypotheses={"displacement_over_time": mv.value, "path_over_time": ms.value, "matches": match,
+                        "displacement_m": ev_v["displacement_m"], "path_length_m": ms.evidence["path_length_m"],
+                        "dt_s": ev_v["dt_s"]},
+            **({"shortened_to": ev_v["shortened_to"]} if ev_v.get("shortened_to") else {}),
+            **k.state["subj"].evidence, **extra)
+        d.defects[:0] = defects
+        k.diagnosis = d
+        self._settle(k, op, value, float(ev_v.get("t1_used", k.state["t1"])), None)
 
+    def _acceleration(self, k: Case) -> None:
+        m = k.state["measured"]["acceleration"]
+        value, aev = m.value, m.evidence
+        cmp = compare_scalar(k.legacy, value, "m/s²", rule_for(k.params, k.source))
+        k.diagnosis = Diagnosis.from_comparison(cmp, operator="acceleration", value_si=value, acceleration=aev,
+                                                **k.state["subj"].evidence)
+        # an interval ending in invalid poses was shortened: the question states the interval measured
+        self._settle(k, "acceleration", value, float(aev.get("t1_used", k.state["t1"])), aev.get("estimator"))
 
-def _adjudicate_rates(pending: list[tuple], params: dict) -> None:
-    group = construction_statistic(pending, str(params.get("default_statistic", "average_velocity")),
-                                   float(params.get("mixed_share", 0.25)))
-    for o, r, c, subj, rr, match in pending:
-        unnamed = "statistic" in c["missing"]
-        if unnamed:
-            g = group[o.source]
-            own = [k for k, m in match.items() if m]
-            determined = g["decided_by"].startswith("majority") or len(own) == 1
-            # one construction per source unless the source is mixed: then each row keeps its own match
-            legacy_stat = own[0] if (len(own) == 1 and (g["mixed"] or not g["decided_by"].startswith("majority"))) \
-                else g["statistic"]
-            if len(own) == 1 and legacy_stat != own[0]:
-                o.evidence["coincidence"] = (f"the legacy value also agrees with {own[0]}, a chance agreement in a "
-                                             f"source whose rows use {legacy_stat}")
-            op = legacy_stat
-            if legacy_stat == "average_velocity" and determined:
-                o.defects += ["statistic_unnamed", "speed_is_displacement_over_time"]
-            o.evidence["construction_statistic"] = {"source": o.source, **g}
-            o.evidence["row_statistic"] = ("matched one statistic" if len(own) == 1 else
-                                           "matched both (the source's statistic)" if own else
-                                           "matched neither (the source's statistic)")
-        else:
-            op = c["operator"]
-        value = rr[op]
-        cmp_ = compare(r.get("Answer Detail"), value, "m/s", rule_for(params, o.source))
-        o.verdict = verdict_for(cmp_["comparable"], cmp_["agrees"])
-        if o.verdict == "corrected":
-            o.defects.append("value_mismatch")
-        o.evidence.update({"operator": op, "value_si": value, "comparison": cmp_, "statistic": STATISTICS[op],
-                           "hypotheses": {"displacement_over_time": rr["average_velocity"],
-                                          "path_over_time": rr["average_speed"], "matches": match,
-                                          "displacement_m": rr["displacement_m"], "path_length_m": rr["path_length_m"],
-                                          "dt_s": rr["dt_s"]},
-                           **({"shortened_to": rr["shortened_to"]} if rr.get("shortened_to") else {}),
-                           **subj.evidence})
-        _finish(o, r, op, subj, value, "m/s", float(c["times"][0]), rr["t1_used"], params)
+    def _settle(self, k: Case, op: str, value: float, t1: float, estimator: str | None) -> None:
+        c, subj, t0 = k.contract, k.state["subj"], k.state["t0"]
+        c.entity = {**c.entity, **subj.entity}
+        c.operator, c.times, c.unit, c.unit_stated, c.frame = op, [t0, t1], UNITS[op], True, subj.track.name
+        c.params["statistic"] = STATISTICS.get(op, estimator)
+        k.state["estimator"] = estimator
+        k.value = value
+        k.provenance(files=subj.files, frames=source_frames(subj.track, t0, t1),
+                     chain=subj.evidence.get("transform_chain", ""))
+        k.outcome.time_start, k.outcome.time_end = t0, t1
+        k.answer = AnswerSpec("scalar", value, UNITS[op], int(k.params["decimals"]))
+
+    def rewrite(self, case: Case) -> str:
+        c = case.contract
+        return question_text(c.operator, subject_phrase(case.state["subj"], c.entity.get("description")),
+                             c.times[0], c.times[1], case.state.get("estimator"))
 
 
 # --------------------------------------------------------------------------------- notebook aids

@@ -1,28 +1,38 @@
-"""Object referents of measurement questions: description phrases, source instances, visibility, boxes.
+"""The one referent module: description phrases, source labels, visibility, instances and boxes.
 
-Used by the scalar tasks (Dimensional Measurement, Displacement & Path Length, Speed & Acceleration).
+Every task reads an object description the same way (grounding, the scalar tasks, relations).
 
 Phrase reading (:func:`read_phrase`)
-    The *head* of a description is its text up to the first preposition or participle
-    ("White door with two black handles" -> "white door"). A head that names a group
-    ("pair of", "set of", "both", a number word, or the plural of a source label) makes the
-    phrase a *grouped referent*. Motion cues ("parked", "moving") are kept for track matching.
+    Normalised (lower case, ``_`` and ``-`` read as spaces), the leading article dropped. A
+    quantifier of ``group_words`` at the start ("pair of", "set of", "both", ...) makes the phrase
+    a *grouped referent* and is dropped. The *head* is the text up to the first cut word (a
+    preposition or participle, :data:`CUT_WORDS`, "of" included) or punctuation
+    ("White door with two black handles" -> "white door"; "black trash can of the kitchen" ->
+    "black trash can"). Motion cues ("parked", "moving") are kept for track matching.
 
-Label matching
-    ScanNet: a segGroup label (or a synonym) must occur as a word in the head; the head noun is
-    the match that ends last. Omni6DPose: the class name with ``_`` read as a space. Waymo: the
-    box ``type`` is all the source knows, so a noun lexicon (:data:`WAYMO_NOUNS`) maps the head
-    noun to a type plus a broad size range of that vehicle class (real-world dimensions, metres),
-    and only boxes of that type whose size lies in the range match ("A red double-decker bus"
-    needs a box at least 3.8 m tall).
+Label matching (:func:`resolve`)
+    A source label (or a synonym, :data:`SYNONYMS`) must occur as a word in the head, optionally
+    with a plural ``s``/``es``; the head noun is the match that ends last (the longer one on a
+    tie: "tv stand" over "stand"). A plural head noun makes the referent a group. ScanNet:
+    segGroup labels; Omni6DPose: class names with ``_`` read as a space. Waymo: the box ``type`` is
+    all the source knows, so a noun lexicon (:data:`WAYMO_NOUNS`) maps the head noun to a type plus
+    a broad size range of that vehicle class (real-world dimensions, metres), and only boxes of that
+    type whose size lies in the range match ("A red double-decker bus" needs a box at least 3.8 m
+    tall); such a noun is *finer than the label* when it names more than the type.
 
-Visibility (:func:`box_visibility`)
+Question text (:func:`noun_phrase`)
+    ``"the <description>"``: the article dropped, the first letter lower-cased unless the
+    description opens with an acronym ("A TV stand" -> "the TV stand", "A U-turn sign" -> "the
+    U-turn sign").
+
+Visibility (:func:`box_visibility`, parameters :func:`visibility_rule`)
     A frustum test with the camera intrinsics (pinhole, distortion ignored, no occlusion): a
     3x3x3 grid of points spanning the solid box (corners, edge and face midpoints, centre) is
     moved into the OpenCV camera frame; a point is in view when its depth lies in
     ``[near, far]`` and it projects inside the image. The box is visible when its centre is in view
     or at least ``min_fraction`` of the points are (a large object close to the camera overflows the
-    image yet is plainly visible).
+    image yet is plainly visible); ``min_fraction: 1.0`` is the centre-only test. One parameter
+    shape everywhere: ``{near, far, min_fraction}``, each a number or a per-source mapping.
 
 Box geometry
     :func:`point_box_distance` (nearest point of a solid oriented box) and
@@ -39,26 +49,35 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from ..errors import ContractError, InputError
-from ..geometry import trajectory as G
-from ..geometry.frames import apply_T, invert_T, make_T
-from ..sources.scannet import OrientedBox, upright_oriented_box
+from .defaults import setting
+from .errors import ContractError, InputError
+from .geometry import trajectory as G
+from .geometry.boxes import OrientedBox, upright_oriented_box
+from .geometry.frames import apply_T, invert_T, make_T
+from .sources.context import derived
 
 __all__ = [
+    "CUT_WORDS",
     "GROUP_WORDS",
+    "SYNONYMS",
     "WAYMO_NOUNS",
     "Instance",
     "Phrase",
+    "Referent",
+    "SceneView",
     "box_box_distance",
     "box_points",
     "box_visibility",
     "match_labels",
+    "noun_phrase",
     "omni_boxes_at",
     "omni_instances",
     "point_box_distance",
     "read_phrase",
+    "resolve",
     "scannet_camera_at",
     "scannet_instances",
+    "visibility_rule",
     "waymo_boxes_at",
     "waymo_camera_at",
     "waymo_noun",
@@ -71,16 +90,17 @@ CUT_WORDS = ("with", "near", "beside", "besides", "next", "by", "on", "in", "und
              "against", "along", "behind", "between", "from", "at", "above", "below", "over",
              "inside", "outside", "across", "around", "wearing", "carrying", "holding", "pulling",
              "pushing", "filled", "covered", "parked", "sitting", "standing", "placed", "leaning",
-             "mounted", "riding", "driving", "walking", "that", "which", "who", "to", "for", "where",
-             "while", "containing", "showing", "featuring", "topped", "stacked", "lying", "hanging")
+             "mounted", "riding", "driving", "walking", "that", "which", "who", "whose", "to", "for", "where",
+             "while", "containing", "showing", "featuring", "topped", "stacked", "lying", "hanging", "of",
+             "full", "facing", "located")
 _CUT_RE = re.compile(r"\b(" + "|".join(CUT_WORDS) + r")\b|[,;(]", re.IGNORECASE)
-#: Markers of a group referent inside the head. Number words are not markers on their own ("three-seat
-#: sofa"); "two chairs" is a group through its plural head noun.
+#: Quantifiers that make a description a group when it opens with one. Number words are not in the
+#: default list ("three-seat sofa"); "two chairs" is a group through its plural head noun.
 GROUP_WORDS = ("pair of", "set of", "group of", "couple of", "row of", "stack of", "pile of", "both")
-_GROUP_RE = re.compile(r"\b(" + "|".join(w.replace(" ", r"\s+") for w in GROUP_WORDS) + r")\b", re.IGNORECASE)
 _STATIC_RE = re.compile(r"\b(parked|stationary|stopped|standing still|idle)\b", re.IGNORECASE)
 _MOVING_RE = re.compile(r"\b(moving|driving|walking|running|riding|turning|crossing|passing|approaching)\b",
                         re.IGNORECASE)
+_ARTICLE_RE = re.compile(r"^(?:the|a|an)\s+", re.IGNORECASE)
 
 #: Synonyms mapping description words to ScanNet / Omni6DPose labels (extend with params ``synonyms``).
 SYNONYMS = {"couch": "sofa", "fridge": "refrigerator", "television": "tv", "trash bin": "trash can",
@@ -93,6 +113,14 @@ def _norm(text: str) -> str:
     return " ".join(str(text).replace("_", " ").replace("-", " ").lower().split())
 
 
+def noun_phrase(desc: str | None) -> str:
+    """``"the <description>"`` for question text: the leading article dropped, the first letter
+    lower-cased unless the description opens with an acronym (``"A TV stand"`` -> ``"the TV stand"``,
+    ``"A U-turn sign"`` -> ``"the U-turn sign"``)."""
+    d = _ARTICLE_RE.sub("", " ".join(str(desc or "object").split()).rstrip("."))
+    return "the " + (d[0].lower() + d[1:] if d and not d[:2].isupper() else d)
+
+
 @dataclass
 class Phrase:
     """A description read for matching.
@@ -100,8 +128,8 @@ class Phrase:
     Attributes
     ----------
     text : the description as given. head : lower-case head noun phrase.
-    grouped : the group marker found in the head (``"pair of"``, ``"both"``, ``"plural: chairs"``)
-        or None. motion : ``"static"``, ``"moving"`` or None (cue words anywhere in the text).
+    grouped : the group marker (``"pair of"``, ``"both"``) or None. motion : ``"static"``,
+        ``"moving"`` or None (cue words anywhere in the text).
     """
 
     text: str
@@ -110,16 +138,17 @@ class Phrase:
     motion: str | None = None
 
 
-def read_phrase(text: str | None) -> Phrase:
+def read_phrase(text: str | None, group_words=GROUP_WORDS) -> Phrase:
     """Head noun phrase, group marker and motion cue of a description (see module docstring)."""
-    t = _norm(text or "")
-    t = re.sub(r"^(the|a|an)\s+", "", t)
-    m = _CUT_RE.search(t)
-    head = t[: m.start()].strip() if m else t
+    t = _ARTICLE_RE.sub("", _norm(text or ""))
     grouped = None
-    g = _GROUP_RE.search(head)
-    if g:
-        grouped = " ".join(g.group(1).lower().split())
+    for g in sorted((_norm(w) for w in group_words), key=len, reverse=True):
+        m = re.match(rf"^(?:the\s+)?{re.escape(g)}\b\s*(?:the\s+)?", t)
+        if m:
+            grouped, t = g, t[m.end():]
+            break
+    m = _CUT_RE.search(t, 1) if t else None
+    head = t[: m.start()].strip() if m else t
     motion = "static" if _STATIC_RE.search(t) else ("moving" if _MOVING_RE.search(t) else None)
     return Phrase(text=str(text or ""), head=head, grouped=grouped, motion=motion)
 
@@ -138,14 +167,9 @@ def match_labels(phrase: Phrase, labels: list[str], synonyms: dict | None = None
     for w, target in syn.items():
         if _norm(target) in known:
             words.setdefault(_norm(w), known[_norm(target)])
-    head = phrase.head
-    # "pair of mugs": the noun follows "of"; "box of tissues": the noun precedes it
-    of = re.search(r"\bof\b", head)
-    if of and not re.search(r"\b(pair|set|group|couple|row|stack|pile)\s+of\b", head):
-        head = head[: of.start()].strip()
     best = None
     for w, lab in words.items():
-        for m in re.finditer(r"\b" + re.escape(w) + r"(es|s)?\b", head):
+        for m in re.finditer(r"\b" + re.escape(w) + r"(es|s)?\b", phrase.head):
             key = (m.end(), len(w))
             if best is None or key > best[0]:
                 plural = m.group(1) is not None and not (w.endswith("s") and m.group(1) == "s")
@@ -184,6 +208,12 @@ WAYMO_NOUNS: dict[str, tuple[str, dict]] = {
     "cyclist": ("TYPE_CYCLIST", {}), "bicyclist": ("TYPE_CYCLIST", {}), "bicycle": ("TYPE_CYCLIST", {}),
     "bike": ("TYPE_CYCLIST", {}),
     "sign": ("TYPE_SIGN", {}),
+    "jeep": ("TYPE_VEHICLE", {"length": (3.4, 5.2), "width": (1.5, 2.1)}),
+    "wagon": ("TYPE_VEHICLE", {"length": (4.0, 5.4), "width": _CAR_W}),
+    "limousine": ("TYPE_VEHICLE", {"length": (5.0, 10.0), "width": (1.7, 2.3)}),
+    "ambulance": ("TYPE_VEHICLE", {"length": (5.0, 8.5), "width": (1.9, 2.6), "height": (2.2, 3.4)}),
+    "walker": ("TYPE_PEDESTRIAN", {}), "biker": ("TYPE_CYCLIST", {}), "rider": ("TYPE_CYCLIST", {}),
+    "signpost": ("TYPE_SIGN", {}),
 }
 
 
@@ -212,6 +242,59 @@ def size_fits(lwh, ranges: dict) -> bool:
     """True when the box's (length, width, height) lies in every given (lo, hi) range."""
     idx = {"length": 0, "width": 1, "height": 2}
     return all(lo <= float(lwh[idx[k]]) <= hi for k, (lo, hi) in ranges.items())
+
+
+@dataclass
+class Referent:
+    """What a description names in one source.
+
+    ``label``: the source label (ScanNet / Omni6DPose) or the Waymo noun; ``box_type`` and
+    ``size_ranges``: what a Waymo box must be to match; ``grouped``: the group marker (a quantifier
+    or ``"plural: <word>"``) or None; ``evidence``: head, matched word, and for Waymo the noun class.
+    """
+
+    description: str | None
+    phrase: Phrase
+    label: str | None
+    plural: bool
+    evidence: dict
+    box_type: str | None = None
+    size_ranges: dict = field(default_factory=dict)
+
+    @property
+    def head(self) -> str:
+        return self.phrase.head
+
+    @property
+    def grouped(self) -> str | None:
+        """The group marker, or None when the description names one object."""
+        if self.phrase.grouped:
+            return self.phrase.grouped
+        return f"plural: {self.evidence.get('matched')}" if self.plural else None
+
+    def admits(self, label: str, lwh=None) -> bool:
+        """Does a source instance (its label; Waymo: type and box size) match the description?"""
+        if self.label is None:
+            return False
+        if self.box_type is not None:
+            return label == self.box_type and (lwh is None or size_fits(lwh, self.size_ranges))
+        return label == self.label
+
+
+def resolve(description: str | None, source: str, labels: list[str] | None = None, *, synonyms: dict | None = None,
+            group_words=GROUP_WORDS) -> Referent:
+    """Read a description against a source's vocabulary (module docstring).
+
+    ``labels``: the sequence's labels (ScanNet, Omni6DPose); Waymo uses :data:`WAYMO_NOUNS`.
+    """
+    ph = read_phrase(description, group_words)
+    if source == "Waymo":
+        noun, typ, ranges = waymo_noun(ph)
+        _, plural, ev = match_labels(ph, list(WAYMO_NOUNS))
+        ev.update({"noun": noun, "box_type": typ, "size_ranges_m": ranges})
+        return Referent(description, ph, noun, plural if noun else False, ev, typ, ranges)
+    label, plural, ev = match_labels(ph, list(labels or []), synonyms)
+    return Referent(description, ph, label, plural, ev)
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -341,11 +424,8 @@ def scannet_camera_at(scene, t: float, tol: float | None = None) -> tuple[np.nda
                       "pose_file": track.source}
 
 
-WAYMO_BOX_FRAME_TOL = 0.06  # seconds: a question time this close to a LiDAR frame reads that frame
-
-
-def waymo_boxes_at(seg, t: float, *, tol: float = WAYMO_BOX_FRAME_TOL) -> list[Instance]:
-    """LiDAR boxes of the frame nearest ``t`` (world frame)."""
+def waymo_boxes_at(seg, t: float, *, tol: float) -> list[Instance]:
+    """LiDAR boxes of the frame nearest ``t`` within ``tol`` seconds (world frame)."""
     out = []
     for b in seg.boxes_at(float(t), tol=tol):
         T = b["T_world_from_box"]
@@ -355,7 +435,7 @@ def waymo_boxes_at(seg, t: float, *, tol: float = WAYMO_BOX_FRAME_TOL) -> list[I
     return out
 
 
-def waymo_camera_at(seg, camera: int, t: float, *, tol: float = G.DEFAULT_TOL) -> tuple[np.ndarray, dict]:
+def waymo_camera_at(seg, camera: int, t: float, *, tol: float) -> tuple[np.ndarray, dict]:
     """``T_world_from_cam`` (OpenCV axes) of a Waymo camera at ``t`` and its pinhole intrinsics."""
     track = seg.camera_track(camera)
     T, ev = G.pose_at(track, float(t), "linear", tol)
@@ -377,10 +457,12 @@ def omni_boxes_at(rope, frame: int) -> list[Instance]:
 
 
 def omni_instances(rope) -> dict[str, dict]:
-    """Every object annotated anywhere in a ROPE scene: oid -> class, dims, frames listing it (cached)."""
-    cache = rope.__dict__.setdefault("_resti_instances", None)
-    if cache is not None:
-        return cache
+    """Every object annotated anywhere in a ROPE scene: oid -> class, dims, frames listing it (computed
+    once per opened scene)."""
+    return derived(rope, "omni_instances", lambda: _omni_instances(rope))
+
+
+def _omni_instances(rope) -> dict[str, dict]:
     inst_meta = rope.object_meta.instance_dict
     out: dict[str, dict] = {}
     for f in rope.frames:
@@ -391,7 +473,6 @@ def omni_instances(rope) -> dict[str, dict]:
             if "lwh" not in d:
                 dims = np.asarray(inst_meta[oid].dimensions, float) if oid in inst_meta else np.full(3, np.nan)
                 d["lwh"] = np.asarray(o.meta.scale, float) * dims
-    rope.__dict__["_resti_instances"] = out
     return out
 
 
@@ -410,10 +491,6 @@ def in_camera(box_world: OrientedBox, T_world_from_cam: np.ndarray) -> OrientedB
     return box_world.transformed(invert_T(np.asarray(T_world_from_cam, float)))
 
 
-def transform_point(T: np.ndarray, p) -> np.ndarray:
-    return apply_T(np.asarray(T, float), np.asarray(p, float))
-
-
 def box_from(center, R, lwh) -> OrientedBox:
     """An :class:`OrientedBox` from arrays."""
     return OrientedBox(np.asarray(center, float), np.asarray(R, float), np.asarray(lwh, float))
@@ -425,8 +502,20 @@ def identity_pose() -> np.ndarray:
 
 # ---------------------------------------------------------------------------------- scene view
 
-#: Visibility defaults per source: far limit (metres) of the frustum test.
-DEFAULT_FAR = {"ScanNet": 12.0, "Waymo": 80.0, "Omni6DPose": 5.0}
+
+def visibility_rule(vis: dict | None, source: str) -> tuple[float, float, float]:
+    """``(near, far, min_fraction)`` of a source from a ``{near, far, min_fraction}`` mapping whose
+    entries are numbers or per-source mappings; missing entries take the operator default
+    (``params/measure.yaml``)."""
+    base = setting(None, "visibility")
+    vis = {**base, **(vis or {})}
+
+    def pick(key):
+        v = vis.get(key, base[key])
+        return float(v.get(source, base[key][source] if isinstance(base[key], dict) else base[key])
+                     if isinstance(v, dict) else v)
+
+    return pick("near"), pick("far"), pick("min_fraction")
 
 
 @dataclass
@@ -449,28 +538,27 @@ class SceneView:
     source : ``ScanNet`` | ``Waymo`` | ``Omni6DPose``
     seq : the opened sequence (``ScanNetScene``, ``WaymoSegment``, ``RopeScene``)
     camera : Waymo camera number (the video's camera)
-    vis : ``{"near", "far" (number or per-source dict), "min_fraction"}``
+    vis : ``{"near", "far", "min_fraction"}`` (:func:`visibility_rule`)
+    params : the operator settings ``waymo_frame_tol_s`` (a time this close to a Waymo box frame
+        reads that frame) and ``time_tol`` (defaults: ``params/measure.yaml``)
     """
 
     def __init__(self, source: str, seq, camera: int | None = None, *, vis: dict | None = None,
-                 synonyms: dict | None = None):
+                 synonyms: dict | None = None, params: dict | None = None):
         self.source = source
         self.seq = seq
         self.camera = camera
-        vis = dict(vis or {})
-        far = vis.get("far", DEFAULT_FAR)
-        self.near = float(vis.get("near", 0.1))
-        self.far = float(far.get(source, DEFAULT_FAR[source]) if isinstance(far, dict) else far)
-        self.min_fraction = float(vis.get("min_fraction", 0.5))
+        self.near, self.far, self.min_fraction = visibility_rule(vis, source)
         self.synonyms = synonyms or {}
-        self._all = None
+        self.frame_tol = float(setting(params, "waymo_frame_tol_s"))
+        self.time_tol = float(setting(params, "time_tol"))
 
     @classmethod
     def open(cls, ctx, video: str, params: dict) -> SceneView:
         vs = ctx.locate(video)
         cam = vs.camera if vs.source == "Waymo" else None
         return cls(vs.source, ctx.sequence(video), cam, vis=params.get("visibility"),
-                   synonyms=params.get("synonyms"))
+                   synonyms=params.get("synonyms"), params=params)
 
     @property
     def name(self) -> str:
@@ -478,19 +566,9 @@ class SceneView:
 
     # -- sequence-level instances
     def all_instances(self) -> list[Instance]:
-        """Every instance of the sequence (ScanNet instances, Waymo tracks, ROPE objects).
-
-        Computed once per opened sequence (kept on the sequence object, which the source context
-        caches), not once per question.
-        """
-        if self._all is not None:
-            return self._all
-        memo = self.seq.__dict__.setdefault("_derived_memo", {})
-        if "all_instances" in memo:
-            self._all = memo["all_instances"]
-            return self._all
-        self._all = memo["all_instances"] = self._build_instances()
-        return self._all
+        """Every instance of the sequence (ScanNet instances, Waymo tracks, ROPE objects), computed
+        once per opened sequence (:func:`resti_lib.sources.context.derived`), not once per question."""
+        return derived(self.seq, "all_instances", self._build_instances)
 
     def _build_instances(self) -> list[Instance]:
         if self.source == "ScanNet":
@@ -515,17 +593,13 @@ class SceneView:
     def labels(self) -> list[str]:
         return sorted({i.label for i in self.all_instances()})
 
-    def matcher(self, phrase: Phrase) -> tuple[str | None, bool, dict, object]:
-        """What the phrase names in this source: ``(label, plural, evidence, predicate(Instance))``."""
-        if self.source == "Waymo":
-            noun, typ, ranges = waymo_noun(phrase)
-            _, plural, ev = match_labels(phrase, list(WAYMO_NOUNS))
-            ev.update({"noun": noun, "box_type": typ, "size_ranges_m": ranges})
-            if noun is None:
-                return None, False, ev, (lambda i: False)
-            return noun, plural, ev, (lambda i: i.label == typ and size_fits(i.dims, ranges))
-        label, plural, ev = match_labels(phrase, self.labels(), self.synonyms)
-        return label, plural, ev, (lambda i: i.label == label)
+    def resolve(self, description: str | None) -> Referent:
+        """What a description names in this sequence (:func:`resolve`)."""
+        return resolve(description, self.source, None if self.source == "Waymo" else self.labels(),
+                       synonyms=self.synonyms)
+
+    def matches(self, ref: Referent, inst: Instance) -> bool:
+        return ref.admits(inst.label, inst.dims)
 
     # -- one time
     def snapshot(self, t: float) -> Snapshot:
@@ -537,14 +611,14 @@ class SceneView:
         if self.source == "Waymo":
             # reading lidar_box here lets a damaged file stop the run (InputError), never one question
             near = self.seq.nearest_box_frame(float(t))
-            if near is not None and abs(near - float(t)) > WAYMO_BOX_FRAME_TOL:
-                far = InputError(f"no box frame within {WAYMO_BOX_FRAME_TOL} s of t={float(t)} "
+            if near is not None and abs(near - float(t)) > self.frame_tol:
+                far = InputError(f"no box frame within {self.frame_tol} s of t={float(t)} "
                                  f"(nearest {near:.6f} s)", file=self.seq.path("lidar_box"),
                                  field="key.frame_timestamp_micros")
                 raise ContractError(str(far))
-            boxes = waymo_boxes_at(self.seq, t)
+            boxes = waymo_boxes_at(self.seq, t, tol=self.frame_tol)
             t_frame = boxes[0].extra["t"] if boxes else float(t)
-            T, ev = waymo_camera_at(self.seq, self.camera, t_frame)
+            T, ev = waymo_camera_at(self.seq, self.camera, t_frame, tol=self.time_tol)
             return Snapshot(float(t), boxes, T, ev["intrinsics"], "Waymo segment world frame",
                             {"t_frame": t_frame, "camera": self.camera, "frame_timestamp_micros":
                              boxes[0].extra["micros"] if boxes else None,
@@ -570,13 +644,19 @@ class SceneView:
     def world_box(self, inst_id: str, t: float | None = None) -> Instance:
         """An instance's box in one common frame for pair distances (ScanNet raw, Waymo world at ``t``,
         ROPE first-camera frame via the object's track)."""
+        def find(instances):
+            hit = next((i for i in instances if i.id == str(inst_id)), None)
+            if hit is None:
+                raise ContractError(f"{self.source} {self.name}: no object {inst_id!r}"
+                                    + (f" at t={t} s" if self.source == "Waymo" else ""))
+            return hit
+
         if self.source == "ScanNet":
-            return next(i for i in self.all_instances() if i.id == str(inst_id))
+            return find(self.all_instances())
         if self.source == "Waymo":
-            snap = self.snapshot(t)
-            return next(i for i in snap.instances if i.id == str(inst_id))
+            return find(self.snapshot(t).instances)
+        base = find(self.all_instances())
         tr = self.seq.object_track(str(inst_id))
         T = tr.T[0]
-        base = next(i for i in self.all_instances() if i.id == str(inst_id))
         return Instance(base.id, base.label, box_from(T[:3, 3], T[:3, :3], base.dims),
                         "ROPE camera frame at the first frame", base.dims, OMNI_DIMS, {"track": tr.name})
