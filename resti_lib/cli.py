@@ -77,22 +77,23 @@ def _cmd_attack(a) -> int:
         print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
         return EXIT_INPUT
     table = attack_table(records, families="all", attacks=names, alpha=a.alpha, progress=True)
-    head = format_headline(headline(table), alpha=a.alpha, tests=len(table))
+    head = headline(table)
+    shown = head if a.headline else table
     if a.format == "json":
-        print(head, file=sys.stderr)
-        print(json.dumps(table.to_dict("records"), indent=1, default=float))
+        print(json.dumps(shown.to_dict("records"), indent=1, default=float))
     elif a.format == "csv":
-        print(head, file=sys.stderr)
-        sys.stdout.write(table.to_csv(index=False, lineterminator="\n"))
+        sys.stdout.write(shown.to_csv(index=False, lineterminator="\n"))
     else:
-        shown = table.copy()
-        for c in ("coverage", "accuracy", "chance", "min_detectable"):
-            shown[c] = shown[c].map(lambda x: f"{x:.3f}")
-        shown["hits"] = shown["hits"].map(lambda x: f"{x:g}")
-        for c in ("p_value", "p_holm"):
-            shown[c] = shown[c].map(lambda x: f"{x:.3g}")
-        print(head + "\n")
-        print(shown.to_markdown(index=False))
+        print(format_headline(head, alpha=a.alpha, tests=len(table)))
+        if not a.headline:
+            t = table.copy()
+            for c in ("coverage", "accuracy", "chance", "min_detectable"):
+                t[c] = t[c].map(lambda x: f"{x:.3f}")
+            t["hits"] = t["hits"].map(lambda x: f"{x:g}")
+            for c in ("p_value", "p_holm"):
+                t[c] = t[c].map(lambda x: f"{x:.3g}")
+            print()
+            print(t.to_markdown(index=False))
     if skipped or rel.meta_error is not None:
         return EXIT_INPUT
     if a.fail_on_significant and bool(table["significant"].any()):
@@ -156,13 +157,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "metadata, learned)")
     at.add_argument("path")
     at.add_argument("--format", choices=["md", "csv", "json"], default="md",
-                    help="table format on stdout (md: headline first; csv/json: headline on stderr)")
+                    help="format on stdout (md: the headline, then the table)")
     at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate over every table row")
     at.add_argument("--families", nargs="*", default=None,
                     help="attack families (default: all): option format typicality question cross_row "
                     "metadata learned_option learned_question")
     at.add_argument("--fast", action="store_true", help="leave the learned families out")
     at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all of the families)")
+    at.add_argument("--headline", action="store_true",
+                    help="print only the headline: one row per task/source cell, significant cells first")
     at.add_argument("--fail-on-significant", action="store_true",
                     help="exit with status 1 when any attack is Holm-significant (for CI)")
     at.set_defaults(fn=_cmd_attack)

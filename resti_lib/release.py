@@ -171,40 +171,16 @@ def release_stage(out_dir: str | os.PathLike, *, inputs=()):
         yield ReleaseStage(stage)
 
 
-OPTION_MODES = ("population", "task")
-
-
-def rebuild_options(accepted: list[dict], *, seed: int = 0, options: dict | None = None) -> list[dict]:
-    """Release-level options: every row's four distractors and letter rebuilt from exchangeable draws
-    calibrated on the answers of its (task, source) population (:mod:`resti_lib.reoption`).
-
-    The task notebooks build each row's options alone; an attacker that learns where answers of a
-    task usually fall can still prefer the most typical candidate. Here the whole population is
-    known, so the draws follow it. Questions, times and Answer Detail strings are unchanged; a row
-    whose options cannot be built under the constraints keeps the task's options.
-    """
-    from .reoption import reoption_records
-
-    rows, _ = reoption_records(accepted, seed=seed, options=options, keep_on_failure=True)
-    return rows
-
-
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, options: str = "population", seed: int = 0, inputs=()) -> dict:
-    """Write the release atomically; returns the validation object.
-
-    ``options``: ``population`` rebuilds the options at release level (:func:`rebuild_options`);
-    ``task`` keeps the options the task notebooks built. ``inputs``: paths the release is made
-    from (the release folder may not be one of them, nor hold one).
-    """
-    if options not in OPTION_MODES:
-        raise ValueError(f"options must be one of {OPTION_MODES}, got {options!r}")
+                  out_dir: str | Path, *, inputs=()) -> dict:
+    """Write the release atomically; returns the validation object. The rows carry the options the
+    task runs built through the option stage (:mod:`resti_lib.options.stage`); they ship unchanged.
+    ``inputs``: paths the release is made from (the release folder may not be one of them, nor hold
+    one)."""
     with release_stage(out_dir, inputs=inputs) as st:
         check_invariants(legacy, accepted, excluded)
         order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
         accepted = sorted(accepted, key=lambda r: order[r["Legacy Row Key"]])
-        if options == "population" and accepted:
-            accepted = rebuild_options(accepted, seed=seed)
         excluded = sorted(excluded, key=lambda r: order[r["key"]])
         provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
         st.write("resti.jsonl", jsonl_text(accepted).encode("utf-8"))
@@ -219,13 +195,11 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     return validation
 
 
-def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path, *, options: str = "population",
-             seed: int = 0) -> dict:
+def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
-    return write_release(accepted, excluded, provenance, legacy, out_dir, options=options, seed=seed,
-                         inputs=[legacy_path, tasks_dir])
+    return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir])
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

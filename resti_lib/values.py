@@ -406,6 +406,15 @@ def format_seconds(t: float) -> str:
     return "0" if s in ("", "-0") else s
 
 
+def adaptive_decimals(value: float, decimals: int = 2, *, min_ulps: float = 20.0, max_decimals: int = 6) -> int:
+    """Decimals needed so a positive ``value`` spans at least ``min_ulps`` printed units
+    (``adaptive_decimals(0.063) == 3``: 0.063 m is 63 units of 0.001)."""
+    if value <= 0 or not math.isfinite(value):
+        return decimals
+    need = math.ceil(math.log10(min_ulps * 10.0 ** -decimals / value)) if value < min_ulps * 10.0 ** -decimals else 0
+    return min(max_decimals, decimals + max(0, need))
+
+
 def format_scalar(value: float, unit: str, decimals: int = 2) -> str:
     """``format_scalar(0.4512, "m") == "0.45m"``; units glued on as in the benchmark."""
     if unit not in _UNITS:
@@ -494,6 +503,6 @@ def number_tokens(text: str) -> list[str]:
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
     "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
-    "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "NO_MOVEMENT", "RELATION_LABELS",
-    "canonical_unit", "si_factor", "unit_dimension", "number_tokens",
+    "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "adaptive_decimals", "NO_MOVEMENT",
+    "RELATION_LABELS", "canonical_unit", "si_factor", "unit_dimension", "number_tokens",
 ]

@@ -97,10 +97,13 @@ def test_cli_headline_and_fail_on_significant(tmp_path, capsys):
                      "json"]) == 0  # the option family cannot see the camera
     cap = capsys.readouterr()
     table = json.loads(cap.out)
-    assert {r["family"] for r in table} == {"option"} and "0 of 2 task/source cells" in cap.err
+    assert {r["family"] for r in table} == {"option"} and cap.err == ""
+    assert cli_main(["attack", str(leaky), "--fast", "--headline", "--format", "json"]) == 0
+    head = json.loads(capsys.readouterr().out)
+    assert [h["significant"] for h in head] == [True, True] and head[0]["attack"] == "metadata_label"
     clean = _release_dir(tmp_path, None)
     assert cli_main(["attack", str(clean), "--fail-on-significant", "--format", "csv"]) == 0
     cap = capsys.readouterr()
-    assert cap.out.startswith("attack,family,task,source,n_rows,")
+    assert cap.out.startswith("attack,family,task,source,n_rows,") and cap.err == ""
     assert cli_main(["attack", str(clean), "--families", "colour"]) == 2
     assert "unknown attack family" in capsys.readouterr().err

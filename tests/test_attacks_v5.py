@@ -94,13 +94,14 @@ def test_learned_question_attacker_reaches_the_small_cells(v5_rows, v5_table):
 def test_implied_rate_is_a_speed_over_the_window(v5_rows):
     """A Displacement distractor implies a speed over the question's window; on v5 the window is stated in
     every Displacement question and the implied speeds of answers stay physical."""
-    from resti_lib.options.observables import implied_rate, observe
+    from resti_lib.options.observables import observables_of
+    from resti_lib.options.readers import implied_rate
 
     speeds = []
     for r in v5_rows:
         if r["Task"] == "Displacement & Path Length" and r["Source"] == "Waymo":
-            o = observe(r)
-            assert o.duration and o.duration > 0
+            o = observables_of(r)
+            assert o.window_s and o.window_s > 0
             kind, v = implied_rate(V.parse(r["Answer Detail"]), o)
             assert kind == "speed"
             speeds.append(v)

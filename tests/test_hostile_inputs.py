@@ -133,20 +133,20 @@ def test_planted_stage_params_never_reach_a_notebook(tmp_path):
 
 def test_one_exception_hierarchy():
     from resti_lib import release, reoption, runner
-    from resti_lib.options import builders
+    from resti_lib.options import stage
 
     for name in errors.__all__:
         assert issubclass(getattr(errors, name), RestiError), name
     assert release.InvariantError is errors.InvariantError
     assert reoption.ReoptionError is errors.ReoptionError
     assert runner.NotebookError is errors.NotebookError
-    assert builders.OptionError is errors.OptionError
+    assert stage.OptionError is errors.OptionError
     # every exception class defined in the package (control-flow classes aside) is a RestiError
     import pkgutil
 
     import resti_lib
 
-    control_flow = {"Excluded", "NoCandidate"}
+    control_flow = {"Excluded", "Exclude", "NoCandidate", "_Reject"}  # a row excluded; a drawn option set redrawn
     for mod in pkgutil.walk_packages(resti_lib.__path__, "resti_lib."):
         m = importlib.import_module(mod.name)
         for obj in vars(m).values():

@@ -133,7 +133,8 @@ def test_release_json_without_counts_fails_and_text_says_not_checked(v5, tmp_pat
     v = verify_path(dst)
     assert v["checks"]["release_json"]["status"] == "skipped"
     text = format_text(v)
-    assert "NOT CHECKED release_json" in text and text.splitlines()[-1].startswith("PASSED (not checked: ")
+    # (v5 itself fails the answer-interface requirements: test_verify names those rows)
+    assert "NOT CHECKED release_json" in text and "(not checked: " in text.splitlines()[-1]
     assert "release_json" in text.splitlines()[-1]
 
 
@@ -197,7 +198,8 @@ def test_device_named_as_an_artifact_is_not_opened(tmp_path):
 
 
 def test_intact_v5_still_passes_every_check(resti_v5_dir):
+    # every structural and integrity check passes; only the answer-interface requirements name rows
     v = verify_path(resti_v5_dir)
-    assert v["passed"] and _failing(v) == {}
+    assert set(_failing(v)) == {"separation", "plausible_given_question"}
     skipped = {k for k, c in v["checks"].items() if c["status"] == "skipped"}
     assert skipped == {"legacy_coverage"}

@@ -41,13 +41,13 @@ def test_failing_cell_names_notebook_and_cell(tmp_path):
     rel = _release(tmp_path)
     lines = (rel / "resti.jsonl").read_text().splitlines()
     r0 = json.loads(lines[0])
-    r0["Candidates"]["B"] = r0["Candidates"]["C"]  # duplicate strings: verify fails, the notebook asserts
-    (rel / "resti.jsonl").write_text("\n".join([json.dumps(r0)] + lines[1:]) + "\n")
+    # an unreadable row: the audit stops in its cell (a failing check is a finding, reported, not a stop)
+    (rel / "resti.jsonl").write_text("\n".join([json.dumps(r0)[:-5]] + lines[1:]) + "\n")
     with pytest.raises(NotebookError) as e:
         run_notebook(NB, {"release_path": str(rel), "audit_dir": str(tmp_path / "ai"),
                           "figure_dir": str(tmp_path / "f")}, out_dir=tmp_path / "nb", html_dir=tmp_path / "h")
     msg = str(e.value)
-    assert "00_answer_interface.ipynb" in msg and "code cell" in msg and "AssertionError" in msg
+    assert "00_answer_interface.ipynb" in msg and "code cell" in msg and "InputError" in msg
 
 
 def test_unknown_parameter_is_an_error(tmp_path):

@@ -293,14 +293,6 @@ def test_score_hypotheses_winner_rules():
     assert G.score_hypotheses(np.array([9.0, 9, 9]), [c], tol=0.0107)["winner"] is None
 
 
-def test_center_sigma_is_source_scaled():
-    p = G.Grounding().settings({})
-    lwh = np.array([3.0, 4.0, 0.0])
-    assert G.center_sigma("ScanNet", lwh, p) == pytest.approx(0.05 + 0.08 * 5)
-    assert G.center_sigma("Omni6DPose", lwh * 0.05, p) < G.center_sigma("ScanNet", lwh, p) < \
-        G.center_sigma("Waymo", lwh * 2, p)
-
-
 # --------------------------------------------------------------------------------- mini-world acceptance
 
 @pytest.fixture(scope="module")

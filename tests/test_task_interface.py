@@ -85,8 +85,7 @@ def _rows() -> pd.DataFrame:
 def toy(tmp_path_factory):
     base = tmp_path_factory.mktemp("toy")
     write_scene(base / "scans")
-    params = {"scannet_root": str(base / "scans"), "seed": 0, "output_dir": str(base / "out"),
-              "options": {"scalar": {"log_spread": [0.10, 0.35], "min_log_gap": 0.04}}}
+    params = {"scannet_root": str(base / "scans"), "seed": 0, "output_dir": str(base / "out")}
     return run_rows(TOY, _rows(), params), params
 
 
@@ -120,7 +119,7 @@ def test_toy_provenance_and_option_spec(toy):
     assert list(prov["verdict"]) == ["retained", "corrected", "excluded"]
     spec = json.loads(prov["option_spec"].iloc[1])
     assert spec["kind"] == "scalar" and spec["unit"] == "m" and spec["decimals"] == 2
-    assert spec["floors"] == {"min_log_gap": 0.04} and spec["rule"]["abs_tol"] == 0.0
+    assert spec["rule"]["abs_tol"] == 0.0
     assert spec["observables"]["subject"] == "the camera" and spec["observables"]["sequence"] == SCENE
     assert spec["observables"]["time_start"] == pytest.approx(0.0333)
     assert pd.isna(prov["option_spec"].iloc[2])  # excluded rows get none
@@ -128,7 +127,12 @@ def test_toy_provenance_and_option_spec(toy):
     assert c["format"] == {"kind": "scalar", "unit": "m", "decimals": 2}  # the repaired answer's σ
     assert c["legacy"]["format"] == {"kind": "scalar", "unit": "m", "decimals": 2}  # the legacy row's σ
     assert c["legacy"]["missing"] == ["unit"] and c["missing"] == []
-    assert c["legacy"]["distractors"]["n_candidates"] == 5 and c["distractors"]["floors"] == {"min_log_gap": 0.04}
+    assert c["legacy"]["distractors"]["n_candidates"] == 5 and "params/options.yaml" in c["distractors"]["policy"]
+    # the options that ship meet the answer-interface requirements
+    from resti_lib.options.checks import ROW_CHECKS, parse_row
+    for r in run.result.accepted:
+        for name in ("separation", "plausible_given_question", "format_consistency"):
+            assert ROW_CHECKS[name](parse_row(r, r["ReSTI ID"])) is None, name
     assert json.loads(prov["source_files"].iloc[0])[0].endswith(".sens")
 
 

@@ -112,13 +112,6 @@ def test_end_within_one_frame_past_the_track_is_clamped_and_recorded():
     assert O.clamp_to_track(tr, 0.0, 0.5, 0.1) == (0.0, 0.5, {})
 
 
-def test_option_spread_scales_with_the_answer():
-    p = O.Orientation().settings({})
-    assert O.option_spread(0.2, p) == (2.0, 3.0)
-    assert O.option_spread(-12.0, p) == (2.0, 12.0)
-    assert O.option_spread(150.0, p) == (2.0, 30.0)
-
-
 # --------------------------------------------------------------------------------- mini-world acceptance
 
 @pytest.fixture(scope="module")

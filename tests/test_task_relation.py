@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from resti_lib.geometry.frames import make_T, yaw_matrix
-from resti_lib.rng import row_rng
+from resti_lib.options.stage import build_options
 from resti_lib.tasks import relation as RE
-from resti_lib.tasks.base import AnswerSpec, build_options
 from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
     check_attacks,
@@ -66,9 +65,11 @@ def test_referents():
 
 def test_label_options_are_the_fixed_five():
     for src, labels in RE.LABELS.items():
-        opts = build_options(AnswerSpec("label", labels[2], labels=labels), rng=row_rng(0, src), target_rank=None,
-                             params={})
-        assert sorted(opts.strings) == sorted(labels) and opts.strings[opts.answer_index] == labels[2]
+        row = {"Video": "v.mp4", "Source": src, "Task": "Spatial Relation", "Question": "q", "time_start": 0.0,
+               "time_end": 0.0, "Candidates": {}, "Answer": None, "Answer Detail": labels[2], "ReSTI ID": "r0"}
+        out, _, _ = build_options([row], seed=0, extras={"r0": {"labels": list(labels)}})
+        assert sorted(out[0]["Candidates"].values()) == sorted(labels)
+        assert out[0]["Candidates"][out[0]["Answer"]] == labels[2]
 
 
 def test_question_wording():

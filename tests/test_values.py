@@ -121,3 +121,11 @@ def test_trajectory_segment_decimals():
     assert t.segment_decimals == (0, 1, 2)
     assert V.parse("no significant movement").segment_decimals == ()
     assert V.Trajectory(segments=(("move", 1.0),), text="").segment_decimals == (0,)
+
+
+def test_adaptive_decimals_for_small_values():
+    # at least 20 printed units: 2.5 m has 250 units of 0.01; 0.063 m needs 0.001 (63 units); 0.0012 m 0.00001
+    assert V.adaptive_decimals(2.5) == 2
+    assert V.adaptive_decimals(0.063) == 3
+    assert V.adaptive_decimals(0.0012) == 5
+    assert V.adaptive_decimals(0.0) == 2

@@ -143,9 +143,9 @@ class Batch:
     @property
     def obs(self) -> list:
         if self._obs is None:
-            from .observables import observe_all
+            from .observables import observables_of
 
-            self._obs = observe_all(self.records)
+            self._obs = [observables_of(r) for r in self.records]
         return self._obs
 
     def __len__(self) -> int:
@@ -917,7 +917,7 @@ def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fas
     if progress:
         from tqdm.auto import tqdm
 
-        it = tqdm(names, desc="attacks", unit="attack")
+        it = tqdm(names, desc="attacks", unit="attack", disable=None)  # silent when not a terminal
     frames = []
     for n in it:
         f = picks_frame(batch, n, _run_one(ATTACKS[n], batch))

@@ -8,6 +8,7 @@ ids of the failing rows. New checks plug in with ``@row_check("name")``.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Callable
 
@@ -46,6 +47,8 @@ class ParsedRow:
     detail_error: str | None
     time_start: object
     time_end: object
+    record: dict | None = None
+    option_params: dict | None = None
 
     @property
     def complete(self) -> bool:
@@ -56,7 +59,7 @@ def _text(v) -> str | None:
     return v if isinstance(v, str) else None
 
 
-def parse_row(r: dict, rid: object) -> ParsedRow:
+def parse_row(r: dict, rid: object, option_params: dict | None = None) -> ParsedRow:
     """Parse a row once. Fields of the wrong type (a list as Task, a number as a candidate) are kept
     out of the parsed values, so every check sees plain text and reports instead of failing."""
     raw = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
@@ -82,7 +85,7 @@ def parse_row(r: dict, rid: object) -> ParsedRow:
     return ParsedRow(rid=rid, task=_text(r.get("Task")), source=_text(r.get("Source")), candidates=cand,
                      answer=_text(r.get("Answer")), detail=_text(detail), values=vals, errors=errs,
                      detail_value=dv, detail_error=de, time_start=r.get("time_start"),
-                     time_end=r.get("time_end"))
+                     time_end=r.get("time_end"), record=r, option_params=option_params)
 
 
 RowCheck = Callable[[ParsedRow], "str | None"]
@@ -270,4 +273,141 @@ def _ranges(p: ParsedRow):
     msgs = [f"{k}: {m}" for k, v in sorted(p.values.items()) for m in range_problems(v)]
     if p.detail_value is not None:
         msgs += [f"Answer Detail: {m}" for m in range_problems(p.detail_value)]
+    return "; ".join(msgs) or None
+
+
+# ---------------------------------------------------------------------------------------------
+# The answer interface's requirements (params/options.yaml; the option stage builds to them):
+# separation, physical possibility given the question, formatting that marks no candidate.
+
+def _spec(p: ParsedRow):
+    """The row's option spec and the option params, or None when the row cannot be read."""
+    from .spec import load_option_params, spec_of
+
+    if p.record is None or p.detail_value is None or not p.complete:
+        return None, None
+    try:
+        spec = spec_of(p.record, str(p.rid))
+    except InputError:
+        return None, None
+    return spec, (p.option_params or load_option_params())
+
+
+@row_check("separation")
+def _separation(p: ParsedRow):
+    """No two candidates within the task's adjudication rule or the separation floors of each other."""
+    from .spec import angle_gap, box_floors, box_separation, pose_floors, pose_separation, scalar_gap
+
+    spec, params = _spec(p)
+    if spec is None:
+        return None
+    vals = [p.values[k] for k in LETTERS]
+    kind = spec.kind
+    msgs = []
+    if kind in ("scalar", "angle", "trajectory"):
+        if kind == "trajectory":
+            xs = sorted((v.total_distance for v in vals if v.segments), key=float)
+        else:
+            xs = sorted(v.value for v in vals)
+        rel = params["separation"]["trajectory" if kind == "trajectory" else "scalar"]["min_rel_gap"] \
+            if kind != "angle" else 0.0
+        for a, b in zip(xs, xs[1:]):
+            need = angle_gap(spec, params) if kind == "angle" else (
+                scalar_gap(spec, params, b) if kind == "scalar" else 0.0)
+            if b - a < need - 1e-9 or (rel and b - a < rel * abs(b) - 1e-12):
+                msgs.append(f"{a:g} and {b:g} closer than the floor")
+        if kind == "angle" and len(xs) > 1 and xs[0] + 360.0 - xs[-1] < angle_gap(spec, params) - 1e-9:
+            msgs.append(f"{xs[0]:g} and {xs[-1]:g} closer than the floor across ±180")
+    elif kind in ("box", "pose"):
+        fl = box_floors(spec, params) if kind == "box" else pose_floors(spec, params)
+        sep = box_separation if kind == "box" else pose_separation
+        for i in range(5):
+            for j in range(i + 1, 5):
+                if sep(vals[i], vals[j], fl) < 1.0 - 1e-9:
+                    msgs.append(f"{LETTERS[i]} and {LETTERS[j]} within the floors {fl}")
+        if kind == "pose":
+            rots = [tuple(np.round(np.array(v.R, float), 9).ravel()) for v in vals]
+            rep = sorted({LETTERS[i] for i in range(5) for j in range(5) if i != j and rots[i] == rots[j]})
+            if rep:
+                msgs.append(f"candidates {rep} print the same rotation")
+    return "; ".join(msgs) or None
+
+
+@row_check("plausible_given_question")
+def _plausible(p: ParsedRow):
+    """Every candidate physically possible given what the question states."""
+    from .spec import per_source, scalar_bounds, speed_bound
+
+    spec, params = _spec(p)
+    if spec is None:
+        return None
+    msgs = []
+    o = spec.obs
+    pl = params["plausibility"]
+    for k in LETTERS:
+        v = p.values[k]
+        if spec.kind == "scalar":
+            _, hi = scalar_bounds(spec, params)
+            if v.value < 0:
+                msgs.append(f"{k}: negative magnitude {v.text}")
+            elif v.value > hi + 1e-9:
+                msgs.append(f"{k}: {v.text} beyond {hi:g}{v.unit} possible for {o.quantity} "
+                            f"over {o.window_s}s" if o.window_s else f"{k}: {v.text} beyond {hi:g}{v.unit}")
+        elif spec.kind == "angle":
+            if not -180.0 <= v.value < 180.0:
+                msgs.append(f"{k}: heading {v.text} outside [-180, 180)")
+        elif spec.kind == "trajectory" and v.segments:
+            _, hi = scalar_bounds(spec, params)
+            if v.total_distance > hi + 1e-9:
+                msgs.append(f"{k}: total {v.total_distance:g}m beyond {hi:g}m over {o.window_s}s")
+        elif spec.kind == "box":
+            mx = float(per_source(pl["max_size_m"], spec.source, math.inf))
+            if max(v.lwh) > mx:
+                msgs.append(f"{k}: edge {max(v.lwh):g}m beyond {mx:g}m")
+            dmin = float(per_source(pl["min_depth_m"], spec.source, 0.0))
+            dmax = float(per_source(pl["max_depth_m"], spec.source, math.inf))
+            if v.center[2] > 0 and not dmin <= v.center[2] <= dmax:
+                msgs.append(f"{k}: depth {v.center[2]:g}m outside [{dmin:g}, {dmax:g}]")
+        elif spec.kind == "pose" and o.premise is not None and o.window_s:
+            vmax = speed_bound(params, spec.source, o.subject_class)
+            d = float(np.linalg.norm(np.array(v.t) - o.premise[:3, 3]))
+            if d / o.window_s > vmax + 1e-9:
+                msgs.append(f"{k}: {d:.2f}m from the premise in {o.window_s:g}s (> {vmax:g} m/s)")
+    return "; ".join(msgs) or None
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def _skeleton(text: str) -> str:
+    return _NUMBER.sub("#", text)
+
+
+@row_check("format_consistency")
+def _format(p: ParsedRow):
+    """No candidate marked by its printing: one layout (key order, spacing, units), the answer's
+    printed decimals, and every candidate exactly what the formatter prints for its own value."""
+    spec, _ = _spec(p)
+    if spec is None or spec.kind in ("label", "trajectory"):
+        return None
+    texts = [p.candidates[k] for k in LETTERS]
+    msgs = []
+    if len({_skeleton(t) for t in texts}) > 1:
+        msgs.append("candidates differ in layout (keys, spacing, units or phrase)")
+    for k in LETTERS:
+        v = p.values[k]
+        t = p.candidates[k]
+        if isinstance(v, V.Scalar):
+            want = (V.format_angle(v.value, spec.decimals) if v.is_angle
+                    else V.format_scalar(v.value, v.unit, spec.decimals))
+            if t != want:
+                msgs.append(f"{k}: {t!r} is not printed like the answer ({want!r})")
+        elif isinstance(v, V.Pose):
+            want = V.format_pose(v.matrix, spec.decimals, compact=spec.value.compact)
+            if t != want:
+                msgs.append(f"{k}: pose not printed like the answer")
+        elif isinstance(v, V.Box) and v.R is not None:
+            want = V.format_box(v.center, v.lwh, v.R)
+            if _skeleton(t) != _skeleton(want) or abs((v.heading or 0.0) - V.box_heading(np.array(v.R))) > 0.05:
+                msgs.append(f"{k}: box not printed like the answer")
     return "; ".join(msgs) or None

@@ -20,10 +20,10 @@ combine them and learn regularities across rows. Two attacks are registered:
       letter-order concordance of :func:`attacks.letter_order <resti_lib.options.attacks>`.
 
 ``learned_question`` (family ``learned_question``)
-    sees the same candidate features plus the question's: its type, subject kind, window length,
-    stated rate window, whether it prints a premise pose, hashed words of the question text and the
-    hashed subject noun (:mod:`resti_lib.options.observables`), and per candidate the rate it implies
-    over the window and its distance to the premise pose.
+    sees the same candidate features plus the question's: the measured quantity, instant or interval,
+    camera or another subject, the window, whether it prints a premise pose, hashed words of the
+    question text and the hashed subject noun (:mod:`resti_lib.options.observables`), and per
+    candidate the rate it implies over the window and its distance to the premise pose.
 
 A gradient-boosting classifier (scikit-learn, fixed ``random_state``, one thread) is trained on
 candidate rows with label "is the keyed candidate" and evaluated out of fold with
@@ -352,10 +352,8 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
 
 # ------------------------------------------------------------------------------------ question features
 
-OPERATORS = ("box_in_camera", "heading_change", "pose", "displacement", "path_length", "average_velocity",
-             "average_speed", "acceleration", "trajectory", "dimension", "distance_to_camera", "object_distance",
-             "mounted_relation", "relative_position")
-SUBJECTS = ("camera", "object", "object_pair", "ambiguous")
+QUANTITIES = ("box", "heading_change", "pose", "displacement", "path_length", "speed", "acceleration", "trajectory",
+              "length", "width", "height", "distance_to_camera", "surface_distance", "distance", "relation")
 WORD_BUCKETS = 32
 NOUN_BUCKETS = 16
 
@@ -367,46 +365,49 @@ def _bucket(text: str, n: int) -> int:
 
 
 def question_row_features(record: dict, obs) -> np.ndarray:
-    """Features of one question (the same for its five candidates): question type, subject, window,
-    premise, hashed words of the question text and hashed subject noun."""
-    op = np.zeros(len(OPERATORS) + 1)
-    op[OPERATORS.index(obs.operator) if obs.operator in OPERATORS else len(OPERATORS)] = 1
-    dim = np.array([obs.qtype == f"dimension:{d}" for d in ("length", "width", "height")], float)
-    subj = np.zeros(len(SUBJECTS) + 1)
-    subj[SUBJECTS.index(obs.subject) if obs.subject in SUBJECTS else len(SUBJECTS)] = 1
-    d = obs.duration
-    window = [np.log(d + 0.1) if d is not None else np.nan, d if d is not None else np.nan,
-              float(d == 0) if d is not None else np.nan, obs.rate_window or 0.0, float(obs.premise is not None)]
+    """Features of one question (the same for its five candidates): the measured quantity, an instant
+    or an interval, a camera or another subject, the window, whether a premise pose is printed, hashed
+    words of the question text and the hashed subject noun."""
+    from .readers import is_camera, noun_of
+
+    q = np.zeros(len(QUANTITIES) + 1)
+    q[QUANTITIES.index(obs.quantity) if obs.quantity in QUANTITIES else len(QUANTITIES)] = 1
+    w = obs.window_s
+    instant = obs.time_start is not None and obs.time_start == obs.time_end
+    window = [np.log(w + 0.1) if w is not None else np.nan, w if w is not None else np.nan, float(instant),
+              float(is_camera(obs)), float(obs.premise is not None)]
     words = np.zeros(WORD_BUCKETS)
     toks = re.findall(r"[a-z]+", str(record.get("Question") or "").lower())
-    for w in toks:
-        words[_bucket(w, WORD_BUCKETS)] += 1
+    for t in toks:
+        words[_bucket(t, WORD_BUCKETS)] += 1
     words /= max(1, len(toks))
     noun = np.zeros(NOUN_BUCKETS + 1)
-    noun[_bucket(obs.noun, NOUN_BUCKETS) if obs.noun else NOUN_BUCKETS] = 1
-    return np.concatenate([op, dim, subj, window, words, noun])
+    n = noun_of(obs)
+    noun[_bucket(n, NOUN_BUCKETS) if n else NOUN_BUCKETS] = 1
+    return np.concatenate([q, window, words, noun])
 
 
 def question_candidate_features(p: ParsedRow, obs) -> np.ndarray:
     """(5, F) candidate features that need the question: the implied rate over the window (log), the
     translation and rotation distance to the premise pose (and whether the candidate repeats it), each
     with its within-row statistics."""
-    from .observables import implied_rate
+    from .readers import implied_rate, premise_parts, repeats_premise
 
     rate = np.full(5, np.nan)
     prem = np.full((5, 3), np.nan)
+    parts = premise_parts(obs)
     for i, k in enumerate(LETTERS):
         v = p.values[k]
         r = implied_rate(v, obs)
         if r is not None:
             rate[i] = math.log(r[1] + 1e-4)
-        if obs.premise is not None and isinstance(v, V.Pose):
-            R0, t0 = np.array(obs.premise.R, float), np.array(obs.premise.t, float)
+        if parts is not None and isinstance(v, V.Pose):
+            t0, R0 = parts
             dt = float(np.linalg.norm(np.array(v.t, float) - t0))
             prem[i] = [math.log(dt + 1e-3), math.degrees(_rot_angle(R0, np.array(v.R, float))),
-                       float(v.key() == obs.premise.key())]
-    parts = [rate[:, None], _column_stats(rate), prem, _column_stats(prem[:, 0]), _column_stats(prem[:, 1])]
-    return np.concatenate(parts, axis=1)
+                       float(repeats_premise(v, obs))]
+    cols = [rate[:, None], _column_stats(rate), prem, _column_stats(prem[:, 0]), _column_stats(prem[:, 1])]
+    return np.concatenate(cols, axis=1)
 
 
 def _option_matrix(batch: Batch) -> tuple[np.ndarray, np.ndarray]:

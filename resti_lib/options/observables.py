@@ -1,171 +1,68 @@
-"""Question observables: what a blind reader learns about a row from everything but the video.
+"""What a blind reader knows about a row besides its options: the question's observables.
 
-The answer interface is judged against readers that see the question text, the other rows of the same
-video and the row's metadata. This module reads, once per row, the observables such a reader has and
-that options must be conditioned on (and that attacks exploit):
+Read from one ReSTI-schema row (question text, times, video name, task, source), never from the
+video or the sources. The option stage conditions the distractors on these (a displacement over
+0.1 s is drawn from the answers' implied rates, a pose near the premise like the answers are, a box
+of a truck like the boxes of trucks); the attack suite reads the same things.
 
-============== ============================================================================================
-field          meaning
-============== ============================================================================================
-``operator``   question type (:func:`question_type`: ``displacement``,
-               ``path_length``, ``average_velocity``, ``acceleration``, ``dimension``, ``pose`` ...)
-``qtype``      ``operator`` refined where the operator has variants (``dimension:height``,
-               ``average_speed@instant``)
-``subject``    ``camera``, ``object``, ``object_pair`` or ``ambiguous``
-``noun``       head noun of the subject description, lower case and singular (``sedan``, ``chair``);
-               ``camera`` for camera questions; None when the question names no subject
-``t0, t1``     the question's time window in seconds (equal for an instant)
-``duration``   ``t1 - t0`` (0 for an instant)
-``rate_window`` the averaging window stated for an instantaneous rate ("over a 1-second window"), seconds
-``premise``    the premise pose printed in a Pose Estimation question (a :class:`resti_lib.values.Pose`;
-               the identity when the question declares the premise pose the identity), else None
-``sequence``   source sequence of the video (ScanNet scan, Waymo segment, ROPE sequence): the unit of
-               grouped cross-validation; the video stem when the name follows no rule
-``camera``     Waymo camera number from the video name (1-5), else None
-============== ============================================================================================
+``Observables`` fields:
 
-Times, the object description and object pairs are read with the readers of :mod:`resti_lib.contract`;
-the question type with the words the task contracts use (:func:`question_type`), since a release row
-carries no contract; the head noun with :func:`resti_lib.referents.read_phrase`; value strings (the
-premise pose) are parsed by :mod:`resti_lib.values` only. Nothing here reads the
-answer or the candidates, so observables are safe to use when building options.
+* ``quantity`` — what is measured: ``displacement``, ``path_length``, ``speed``, ``acceleration``,
+  ``length``, ``width``, ``height``, ``distance_to_camera``, ``surface_distance``, ``distance``,
+  ``heading_change``, ``box``, ``pose``, ``trajectory``, ``relation``;
+* ``window_s`` — the question's time window (end minus start, or target minus premise time), or None;
+* ``subject`` / ``subject_class`` — the noun phrase of the measured thing and its head noun
+  (``camera`` for the camera);
+* ``premise`` — the 4x4 premise pose of a Pose question (identity when the question takes the
+  reference camera as the identity), ``premise_text`` its printed JSON, ``premise_time``;
+* ``sequence`` / ``camera`` — from the video name (the source recording; Waymo camera number).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .. import values as V
-from .. import contract as C
 from ..errors import InputError
-from ..sources.mapping import map_video
 
-__all__ = [
-    "RATE_OPERATORS",
-    "Observables",
-    "head_noun",
-    "implied_rate",
-    "observe",
-    "observe_all",
-    "premise_pose",
-    "sequence_of",
-]
-
-# Operators whose answer divided by the window is a speed (m/s), and operators whose answer is a rate.
-_PER_WINDOW = {"displacement": "speed", "path_length": "speed", "trajectory": "speed", "heading_change": "turn rate"}
-RATE_OPERATORS = {"average_velocity": "speed", "average_speed": "speed", "acceleration": "acceleration"}
-
-_PREFIX = re.compile(r"^(?:(?:target\s+)?object\s+description|objects?|target)\s*:\s*", re.IGNORECASE)
-_LEAD = re.compile(r"^(?:bounding\s+box(?:es)?\s+of\s+)?(?:the|a|an|two|three|some|several)\s+", re.IGNORECASE)
-_RATE_WINDOW = re.compile(r"(\d+(?:\.\d+)?)\s*-?\s*second\s+(?:central\s+)?windows?", re.IGNORECASE)
-_JSON_OBJ = re.compile(r"\{[^{}]*\}")
-_IDENTITY = re.compile(r"\bas the identity\b", re.IGNORECASE)
-# "... of the <subject> between t=..", "... of the <subject> at t=..", "... of the <subject>?"
-_OF_SUBJECT = re.compile(r"\b(?:velocity|speed|acceleration|displacement|distance traveled|trajectory|length|width|"
-                         r"height|position|box) of (?:the |a |an )?(.+?)(?:\s+between\b|\s+at\b|\s+from\b|\?|,|$)",
-                         re.IGNORECASE)
+_TIME = r"t\s*=\s*(-?\d+(?:\.\d+)?)\s*s"
+_CUT_WORDS = ("with", "near", "beside", "besides", "next", "by", "on", "in", "under", "underneath",
+              "against", "along", "behind", "between", "from", "at", "above", "below", "over", "inside",
+              "outside", "across", "around", "wearing", "carrying", "holding", "pulling", "pushing",
+              "filled", "covered", "parked", "sitting", "standing", "placed", "leaning", "full", "facing",
+              "mounted", "hanging", "located", "that", "which", "where", "whose", "of", "to")
+_CUT_RE = re.compile(r"\b(" + "|".join(_CUT_WORDS) + r")\b|[,;(]", re.IGNORECASE)
+_WAYMO_VIDEO = re.compile(r"^(?P<seq>.+)_camera_(?P<cam>\d+|[A-Za-z_]+)$")
 
 
 @dataclass(frozen=True)
 class Observables:
-    """What a blind reader knows about one row (see the module docstring)."""
-
     task: str
     source: str
     video: str
     sequence: str
-    camera: int | None
-    operator: str
-    qtype: str
-    subject: str | None
-    noun: str | None
-    description: str | None
-    t0: float | None
-    t1: float | None
-    rate_window: float | None
-    premise: V.Pose | None
-    premise_time: float | None
+    camera: str | None
+    quantity: str
+    time_start: float | None
+    time_end: float | None
+    window_s: float | None
+    subject: str
+    subject_class: str
+    premise: np.ndarray | None = field(default=None, compare=False)
+    premise_text: str | None = None
+    premise_time: float | None = None
 
-    @property
-    def duration(self) -> float | None:
-        """Length of the question's time window in seconds (0 for an instant; None when unknown)."""
-        if self.t0 is None or self.t1 is None:
-            return None
-        return self.t1 - self.t0
+    def to_dict(self) -> dict:
+        return {"quantity": self.quantity, "window_s": self.window_s, "subject": self.subject,
+                "subject_class": self.subject_class, "sequence": self.sequence, "camera": self.camera,
+                "premise_time": self.premise_time, "premise": self.premise_text}
 
 
-def _singular(word: str) -> str:
-    w = word.lower()
-    if len(w) > 4 and w.endswith("ves") and not w.endswith(("eves", "oves")):
-        return w[:-3] + "f"          # shelves -> shelf
-    if len(w) > 4 and w.endswith("ies"):
-        return w[:-3] + "y"          # batteries -> battery
-    if len(w) > 4 and w.endswith(("ches", "shes", "sses", "xes")):
-        return w[:-2]                # benches -> bench, boxes -> box
-    if len(w) > 3 and w.endswith("s") and not w.endswith(("ss", "us", "is")):
-        return w[:-1]                # chairs -> chair
-    return w
-
-
-def head_noun(description: str | None) -> str | None:
-    """The head noun of a subject description, lower case and singular.
-
-    ``"A small brown teddy bear wearing a blue shirt"`` -> ``"bear"``; ``"Office chairs in front of a
-    bookshelf"`` -> ``"chair"``; ``"Object description: Black Ford pickup truck"`` -> ``"truck"``.
-    The head noun phrase is read by :func:`resti_lib.referents.read_phrase` (the one phrase reader:
-    it ends at the first cut word or punctuation); its last word is the head.
-    """
-    from ..referents import read_phrase
-
-    if not description:
-        return None
-    s = _PREFIX.sub("", " ".join(str(description).split()))
-    s = _LEAD.sub("", s)
-    words = re.findall(r"[a-z][a-z]*", read_phrase(s).head)
-    while len(words) > 1 and words[-1].endswith(("ing", "ed")):  # "trash can overflowing" -> "can"
-        words.pop()
-    return _singular(words[-1]) if words else None
-
-
-def premise_pose(question: str, *, row: object = None) -> V.Pose | None:
-    """The premise pose printed in a question (the first pose JSON object), parsed by :mod:`values`.
-
-    A question that declares the premise pose the identity ("taking the camera pose at t=0 s as the
-    identity") has the identity premise. Returns None when the question states no pose.
-    """
-    q = str(question or "")
-    for m in _JSON_OBJ.finditer(q):
-        text = m.group(0)
-        if '"tx"' not in text:
-            continue
-        try:
-            v = V.parse(text, row=row, field="Question")
-        except InputError:
-            continue
-        if isinstance(v, V.Pose):
-            return v
-    if _IDENTITY.search(q):
-        return V.parse(V.format_pose(np.eye(4), 2), row=row, field="Question")
-    return None
-
-
-def sequence_of(video: str) -> tuple[str, int | None]:
-    """Source sequence and Waymo camera of a video name (rule of :func:`sources.mapping.map_video`);
-    a name that follows no rule is its own sequence."""
-    try:
-        m = map_video(video)
-        return m.sequence, m.camera
-    except InputError:
-        name = Path(str(video)).name
-        return (name[:-4] if name.lower().endswith(".mp4") else name), None
-
-
-def _float(x) -> float | None:
+def _num(x) -> float | None:
     try:
         v = float(x)
     except (TypeError, ValueError):
@@ -173,129 +70,129 @@ def _float(x) -> float | None:
     return v if math.isfinite(v) else None
 
 
-_CAMERA_WORDS = ("camera", "ego", "our car", "the vehicle we", "recording vehicle")
-_PATH_WORDS = ("total distance", "trajectory length", "path length", "distance traveled")
-_DESCRIPTION_PATTERNS = (r"bounding box of (?:the |a |an )?(.+?)(?: in (?:the |an )?(?:\w+ )?OpenCV|[.?]?$)",
-                         r"(?:length|width|height) of (?:the |a |an )?(.+?)\?",
-                         r"close is the camera to (?:the |a |an )?(.+?)(?: at |\?)",
-                         r"How far has (?:the |a |an )?(.+?) traveled",
-                         r"How quickly is (?:the |a |an )?(.+?) accelerating")
+def sequence_of(video: str, source: str) -> tuple[str, str | None]:
+    """Source sequence and camera from a video name (``<segment>_camera_<n>.mp4``, ``sceneXXXX_YY``, ``000123``)."""
+    stem = re.sub(r"\.[A-Za-z0-9]+$", "", str(video or ""))
+    m = _WAYMO_VIDEO.match(stem)
+    if m and source == "Waymo":
+        return m["seq"], m["cam"]
+    return stem, None
 
 
-def question_type(row: dict, q: str) -> tuple[str, dict]:
-    """``(operator, entity)`` of a question read from its text, the way the task contracts read them
-    (:mod:`resti_lib.tasks`): the operator of the task and, for the motion and dimension tasks, the
-    variant the words name; the entity ``{"kind": camera | object | object_pair, "description(s)"}``.
-    A release row carries no contract, so a blind reader (and the attack suite) reads it from here."""
-    task, ql = row.get("Task"), q.lower()
-    camera = {"kind": "camera"}
+def head_noun(phrase: str) -> str:
+    """The head noun of a description: the last word before the first relational word or comma
+    (``"white utility truck with a bucket lift"`` -> ``truck``)."""
+    t = " ".join(str(phrase or "").lower().split())
+    t = re.sub(r"^(the|a|an)\s+", "", t)
+    m = _CUT_RE.search(t)
+    head = t[:m.start()] if m and m.start() > 0 else t
+    words = re.findall(r"[a-z][a-z\-]*", head)
+    return words[-1] if words else ""
 
-    def obj():
-        d = C.description(row, q, _DESCRIPTION_PATTERNS)
-        if d is None:
-            m = _OF_SUBJECT.search(q)
-            d = m.group(1).strip() if m else None
-        return {"kind": "object", "description": d}
 
-    if task == "3D Video Grounding":
-        return "box_in_camera", obj()
-    if task == "Ego-Centric Orientation":
-        return "heading_change", camera
-    if task == "Pose Estimation":
-        return "pose", camera
-    if task == "Trajectory Description":
-        return "trajectory", camera
-    if task in ("Displacement & Path Length", "Speed & Acceleration"):
-        if "accelerat" in ql:
-            op = "acceleration"
-        elif task == "Speed & Acceleration":
-            op = "average_speed" if "speed" in ql else "average_velocity"
-        else:
-            op = "path_length" if any(w in ql for w in _PATH_WORDS) and "displacement" not in ql else "displacement"
-        return op, (camera if any(w in ql for w in _CAMERA_WORDS) else obj())
+_ART = r"(?:the |a |an )?"
+_SUBJECT_PATTERNS = (
+    re.compile(r"bounding box of " + _ART + r"(?P<s>.+?) in (?:the |an |a )?(?:\w+ )*?(?:OpenCV|camera) ", re.I),
+    re.compile(r"nearest point of the bounding box of " + _ART + r"(?P<s>.+?)\?", re.I),
+    re.compile(r"\b(?:length|width|height)\b(?: \([^)]*\))? of " + _ART + r"(?P<s>.+?)\?", re.I),
+    re.compile(r"\bbetween (?:the bounding boxes of )?" + _ART + r"(?!t\s*=)(?P<s>.+?) and ", re.I),
+    re.compile(r"\bof " + _ART + r"(?P<s>.+?) \(its 3D box", re.I),
+    re.compile(r"\bof " + _ART + r"(?P<s>.+?) (?:between|at) t\s*=", re.I),
+)
+
+
+_QUANTITY_PREFIX = re.compile(r"^(?:.*?\b(?:acceleration|velocity|speed|displacement|distance|length)\b"
+                              r"(?: \([^)]*\))? of " + _ART + r")+", re.I)
+
+
+def subject_of(question: str) -> str:
+    q = " ".join(str(question or "").split())
+    if re.search(r"\bcamera'?s?\b.{0,40}\b(between|at t|trajectory|movement|velocity|displacement|"
+                 r"acceleration|heading|pose)", q, re.I) and not re.search(r"bounding box of", q, re.I):
+        if not re.search(r"\(its 3D box", q, re.I):
+            return "camera"
+    for pat in _SUBJECT_PATTERNS:
+        m = pat.search(q)
+        if m:
+            s = _QUANTITY_PREFIX.sub("", m["s"].strip()).strip()
+            if s.lower() in ("camera", "the camera"):
+                return "camera"
+            return s
+    return "camera" if "camera" in q.lower() else ""
+
+
+def quantity_of(task: str, question: str) -> str:
+    q = " ".join(str(question or "").lower().split())
+    if task == "Displacement & Path Length":
+        if re.search(r"trajectory length|total distance|path length|distance traveled|distance travelled", q):
+            return "path_length"
+        return "displacement"
+    if task == "Speed & Acceleration":
+        return "acceleration" if "acceleration" in q else "speed"
     if task == "Dimensional Measurement":
-        pair = C.object_pair(q)
-        if pair and "distance" in ql:
-            return "object_distance", {"kind": "object_pair", "descriptions": list(pair)}
-        if "close is the camera" in ql or "from the camera" in ql or "camera to" in ql:
-            return "distance_to_camera", obj()
-        m = re.search(r"\b(length|width|height)\b", ql)
-        return (f"dimension:{m.group(1)}", obj()) if m else ("unknown", obj())
-    if task == "Spatial Relation":
-        if "mounted" in ql:
-            return "mounted_relation", camera
-        pair = C.object_pair(q)
-        if pair:
-            return "relative_position", {"kind": "object_pair", "descriptions": list(pair)}
-    return "unknown", {}
+        if "surface-to-surface" in q or "surface to surface" in q:
+            return "surface_distance"
+        if re.search(r"distance from the camera", q):
+            return "distance_to_camera"
+        m = re.search(r"what is the (?:approximate )?(length|width|height)\b(?: \([^)]*\))? of\b", q)
+        if m:
+            return m.group(1)
+        return "distance"
+    return {"Ego-Centric Orientation": "heading_change", "3D Video Grounding": "box", "Pose Estimation": "pose",
+            "Trajectory Description": "trajectory", "Spatial Relation": "relation"}.get(task, "value")
 
 
-def observe(row: dict) -> Observables:
-    """The observables of one ReSTI (or legacy) row. Never raises on odd question text: what cannot be
-    read is None."""
-    q = C.question_text(row)
+def premise_of(question: str) -> tuple[np.ndarray | None, str | None, float | None]:
+    """The premise pose printed in a Pose question, its text and its time (identity for a question
+    that takes the reference camera as the identity)."""
+    q = str(question or "")
+    m = re.search(r"\{[^{}]*\"tx\"[^{}]*\}", q)
+    if m:
+        text = m.group(0)
+        try:
+            p = V.parse(text)
+        except InputError:
+            return None, None, None
+        if not isinstance(p, V.Pose):
+            return None, None, None
+        before = q[:m.start()]
+        times = re.findall(_TIME, before)
+        t = float(times[-1]) if times else (0.0 if re.search(r"initial pose", before, re.I) else None)
+        return p.matrix, text, t
+    m = re.search(r"camera pose at " + _TIME + r" as the identity", q, re.I)
+    if m:
+        return np.eye(4), None, float(m.group(1))
+    return None, None, None
+
+
+def observables_of(row: dict) -> Observables:
+    """The observables of one ReSTI-schema row (see the module docstring)."""
+    task = str(row.get("Task") or "")
+    source = str(row.get("Source") or "")
     video = str(row.get("Video") or "")
-    sequence, camera = sequence_of(video)
-    task, source = row.get("Task"), row.get("Source")
-    operator, entity = question_type(row, q)
-    qtype = operator
-    operator = operator.split(":", 1)[0]
-    times = [t for t in (_float(t) for t in C.find_times(q)[0]) if t is not None]
-    if not times:
-        times = [t for t in (_float(row.get("time_start")), _float(row.get("time_end"))) if t is not None]
-    premise = premise_pose(q, row=row.get("ReSTI ID")) if task == "Pose Estimation" else None
-    premise_time = None
-    if task == "Pose Estimation":
-        stamps = [float(x) for x in re.findall(rf"t\s*=\s*({C.NUM})\s*s", q)]
-        if len(stamps) >= 2 or (len(stamps) == 1 and premise is not None and "initial" not in q.lower()
-                                and "identity" not in q.lower()):
-            premise_time, times = stamps[0], stamps[-1:]
-        elif len(stamps) == 1:
-            premise_time, times = 0.0, stamps
-    elif task in ("3D Video Grounding", "Dimensional Measurement", "Spatial Relation") and len(times) > 1 \
-            and C.find_times(q)[1]:
-        times = times[:1]
-    t0, t1 = (times[0], times[-1]) if times else (None, None)
-    m = _RATE_WINDOW.search(q)
-    rate_window = float(m.group(1)) if m else None
-    if operator in RATE_OPERATORS and t0 is not None and t0 == t1:
-        qtype = f"{operator}@instant"
-    subject = entity.get("kind")
-    descriptions = [entity["description"]] if entity.get("description") else list(entity.get("descriptions") or [])
-    if subject == "camera":
-        noun, description = "camera", None
-    else:
-        description = descriptions[-1] if descriptions else None
-        noun = head_noun(description)
-    return Observables(task=task, source=source, video=video, sequence=sequence, camera=camera, operator=operator,
-                       qtype=qtype, subject=subject, noun=noun, description=description, t0=t0, t1=t1,
-                       rate_window=rate_window, premise=premise,
-                       premise_time=premise_time if premise is not None else None)
+    q = str(row.get("Question") or "")
+    t0, t1 = _num(row.get("time_start")), _num(row.get("time_end"))
+    seq, cam = sequence_of(video, source)
+    quantity = quantity_of(task, q)
+    premise, premise_text, premise_time = (premise_of(q) if task == "Pose Estimation" else (None, None, None))
+    window = None
+    if quantity == "pose":
+        target = t1
+        if premise_time is not None and target is not None:
+            window = abs(target - premise_time)
+        elif t0 is not None and t1 is not None:
+            window = t1 - t0
+    elif quantity in ("displacement", "path_length", "speed", "acceleration", "heading_change", "trajectory"):
+        if t0 is not None and t1 is not None and t1 > t0:
+            window = t1 - t0
+        else:  # an instant: the stated averaging window, if any ("over a 1-second window")
+            m = re.search(r"(\d+(?:\.\d+)?)-second (?:central )?window", q)
+            window = float(m.group(1)) if m else None
+    subject = "camera" if quantity in ("heading_change", "pose", "trajectory") else subject_of(q)
+    cls = "camera" if subject == "camera" else head_noun(subject)
+    return Observables(task=task, source=source, video=video, sequence=seq, camera=cam, quantity=quantity,
+                       time_start=t0, time_end=t1, window_s=window, subject=subject, subject_class=cls,
+                       premise=premise, premise_text=premise_text, premise_time=premise_time)
 
 
-def observe_all(records: list[dict]) -> list[Observables]:
-    """:func:`observe` for every row, in order."""
-    return [observe(r) for r in records]
-
-
-def implied_rate(value, obs: Observables) -> tuple[str, float] | None:
-    """The rate a value implies over the question's window: ``(kind, rate)``.
-
-    Displacements, path lengths and trajectories imply a speed (distance / duration, m/s), a heading
-    change a turn rate (|degrees| / duration); speeds and accelerations are rates themselves (SI
-    magnitude). None when the value has no rate (another operator, an instant window for a distance,
-    an unparsed value).
-    """
-    if isinstance(value, V.Trajectory):
-        x = value.total_distance
-    elif isinstance(value, V.Scalar):
-        x = abs(value.si)
-    else:
-        return None
-    if obs.operator in RATE_OPERATORS:
-        return RATE_OPERATORS[obs.operator], x
-    kind = _PER_WINDOW.get(obs.operator)
-    d = obs.duration
-    if kind is None or d is None or d <= 0:
-        return None
-    return kind, x / d
+__all__ = ["Observables", "observables_of", "head_noun", "subject_of", "quantity_of", "premise_of", "sequence_of"]

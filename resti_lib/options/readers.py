@@ -1,7 +1,8 @@
 """Attack families that read beyond the five candidates: the question (family ``question``), the other
 rows of the same video or source sequence (``cross_row``) and non-video metadata (``metadata``).
 
-Question-aware rules use the observables of :mod:`resti_lib.options.observables`:
+Question-aware rules use the observables of :mod:`resti_lib.options.observables` (the ones the option
+stage conditions its distractors on):
 
 - ``implied_rate_typical``: the rate a candidate implies over the question's window (a displacement
   or path over the window is a speed, a heading change a turn rate; speeds and accelerations are
@@ -41,6 +42,7 @@ import numpy as np
 
 from .. import LETTERS
 from .. import values as V
+from ..errors import InputError
 from .attacks import ALL5, Batch, answer_key, attack, directional, majority_label, split_halves, top
 
 # Largest physically possible rates by rate kind (and source for camera speeds): handheld indoor and
@@ -55,6 +57,72 @@ PHYSICAL_LIMITS = {
 POSSIBLE_MARGIN = 2.0  # a rate above twice the largest answer rate of the other rows is impossible
 MIN_NOUN_ROWS = 4      # condition on the subject noun when at least this many other rows share it
 NEIGHBOURS = 5
+
+
+# ------------------------------------------------------------------------------------ observables
+# What the rules read of :class:`resti_lib.options.observables.Observables`.
+
+_PER_WINDOW = {"displacement": "speed", "path_length": "speed", "trajectory": "speed", "heading_change": "turn rate"}
+_RATES = {"speed": "speed", "acceleration": "acceleration"}
+
+
+def question_kind(o) -> str:
+    """The question type: the measured quantity, with ``@instant`` for a speed or acceleration at one
+    instant (averaged over a stated window) rather than over an interval."""
+    if o.quantity in _RATES and o.time_start is not None and o.time_start == o.time_end:
+        return f"{o.quantity}@instant"
+    return o.quantity
+
+
+def is_camera(o) -> bool:
+    return o.subject_class == "camera"
+
+
+def noun_of(o) -> str | None:
+    """The head noun of the measured thing; None for the camera or when the question names none."""
+    return None if is_camera(o) or not o.subject_class else o.subject_class
+
+
+def implied_rate(value, o) -> tuple[str, float] | None:
+    """The rate a value implies over the question's window: ``(kind, rate)``.
+
+    Displacements, path lengths and trajectories imply a speed (distance / window, m/s), a heading
+    change a turn rate (|degrees| / window); speeds and accelerations are rates themselves (SI
+    magnitude). None when the value has no rate (another quantity, no window, an unparsed value).
+    """
+    if isinstance(value, V.Trajectory):
+        x = value.total_distance
+    elif isinstance(value, V.Scalar):
+        x = abs(value.si)
+    else:
+        return None
+    if o.quantity in _RATES:
+        return _RATES[o.quantity], x
+    kind = _PER_WINDOW.get(o.quantity)
+    w = o.window_s
+    if kind is None or w is None or w <= 0:
+        return None
+    return kind, x / w
+
+
+def premise_parts(o) -> tuple[np.ndarray, np.ndarray] | None:
+    """Translation (3,) and rotation (3, 3) of the premise pose of a Pose question, or None."""
+    if o.premise is None:
+        return None
+    P = np.asarray(o.premise, float)
+    return P[:3, 3], P[:3, :3]
+
+
+def repeats_premise(v, o) -> bool:
+    """Whether a pose candidate prints the premise pose itself (the same printed numbers)."""
+    if o.premise is None or not isinstance(v, V.Pose):
+        return False
+    if o.premise_text:
+        try:
+            return V.parse(o.premise_text).key() == v.key()
+        except InputError:
+            return False
+    return bool(np.allclose(v.matrix, np.asarray(o.premise, float), atol=0.5 * 10.0 ** -v.decimals + 1e-9))
 
 
 # ------------------------------------------------------------------------------------ helpers
@@ -111,21 +179,17 @@ def loo_density(batch: Batch, values: list, pop_key, *, noun_key=None) -> list:
 
 
 def _cell_qtype(batch: Batch, i: int) -> tuple:
-    o = batch.obs[i]
-    return (batch.rows[i].task, batch.rows[i].source, o.qtype)
+    return (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i]))
 
 
 def _noun(batch: Batch, i: int):
-    o = batch.obs[i]
-    return None if o.subject == "camera" else o.noun
+    return noun_of(batch.obs[i])
 
 
 # ------------------------------------------------------------------------------------ question-aware rules
 
 def _rates(batch: Batch) -> list:
     """Per row: (rate kind, ``letter -> rate``) or None."""
-    from .observables import implied_rate
-
     out = []
     for p, o in zip(batch.rows, batch.obs):
         r = {k: implied_rate(v, o) for k, v in p.values.items()}
@@ -139,7 +203,7 @@ def _rates(batch: Batch) -> list:
 
 def _rate_group(batch: Batch, i: int, rates: list):
     o = batch.obs[i]
-    return (o.source, rates[i][0], "camera" if o.subject == "camera" else "object")
+    return (o.source, rates[i][0], "camera" if is_camera(o) else "object")
 
 
 @attack("implied_rate_typical", ["scalar", "trajectory"], "candidate whose implied rate over the question's window "
@@ -174,13 +238,13 @@ def _implied_rate_possible(batch: Batch):
     return out
 
 
-def _pose_distances(p, premise) -> dict | None:
+def _pose_distances(p, o) -> dict | None:
     """``letter -> (translation distance, rotation angle in degrees)`` to the premise; None for a
     candidate that repeats the premise."""
     out = {}
-    tp, Rp = np.array(premise.t, float), np.array(premise.R, float)
+    tp, Rp = premise_parts(o)
     for k, v in p.values.items():
-        if v.key() == premise.key():
+        if repeats_premise(v, o):
             out[k] = None
             continue
         R = np.array(v.R, float)
@@ -198,7 +262,7 @@ def _premise_distance(batch: Batch):
         if o.premise is None or not all(isinstance(v, V.Pose) for v in p.values.values()):
             scores.append(None)
             continue
-        d = _pose_distances(p, o.premise)
+        d = _pose_distances(p, o)
         real = [x for x in d.values() if x is not None]
         if not real:
             scores.append({k: np.nan for k in LETTERS})
@@ -317,7 +381,12 @@ def _xrow_scores(batch: Batch, count) -> list:
         scope="batch")
 def _xrow_question(batch: Batch):
     flat_q = [_flat(r.get("Question") or "") for r in batch.records]
-    premise_keys = [o.premise.key() if o.premise is not None else None for o in batch.obs]
+    premise_keys = []
+    for o in batch.obs:
+        try:
+            premise_keys.append(V.parse(o.premise_text).key() if o.premise_text else None)
+        except InputError:
+            premise_keys.append(None)
     pats: dict = {}
 
     def count(i, k, others):
@@ -359,7 +428,7 @@ def _xrow_answer(batch: Batch):
 
 def _camera_key(batch: Batch, i: int):
     o = batch.obs[i]
-    return None if o.camera is None else (batch.rows[i].task, batch.rows[i].source, o.qtype, o.camera)
+    return None if o.camera is None else (batch.rows[i].task, batch.rows[i].source, question_kind(o), o.camera)
 
 
 @attack("metadata_label", ["label", "trajectory"], "most frequent answer label (trajectory: structure) per camera in "

@@ -215,13 +215,16 @@ def _typical_box_placement(batch: Batch):
     return directional(batch, loo_gaussian_scores(batch, feats))
 
 
-def _rel_motion(v: V.Pose, premise: V.Pose | None) -> np.ndarray:
-    """(log translation length, rotation angle in degrees) of a pose relative to the premise (or to the
-    identity)."""
+def _rel_motion(v: V.Pose, o) -> np.ndarray:
+    """(log translation length, rotation angle in degrees) of a pose relative to the question's premise
+    pose (or to the identity when it prints none)."""
+    from .readers import premise_parts
+
     t, R = np.array(v.t, float), np.array(v.R, float)
-    if premise is not None:
-        t = t - np.array(premise.t, float)
-        R = np.array(premise.R, float).T @ R
+    prem = premise_parts(o)
+    if prem is not None:
+        t = t - prem[0]
+        R = prem[1].T @ R
     ang = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
     return np.array([np.log(np.linalg.norm(t) + 1e-3), ang])
 
@@ -233,7 +236,7 @@ def _typical_pose_motion(batch: Batch):
     feats = []
     for p, o in zip(batch.rows, batch.obs):
         if all(isinstance(v, V.Pose) for v in p.values.values()):
-            feats.append({k: _rel_motion(p.values[k], o.premise) for k in LETTERS})
+            feats.append({k: _rel_motion(p.values[k], o) for k in LETTERS})
         else:
             feats.append(None)
     return directional(batch, loo_gaussian_scores(batch, feats))

@@ -18,9 +18,12 @@ what is specific to it:
 
 The runner (:mod:`resti_lib.tasks.run`) owns the rest, once: the :class:`Outcome` of each row,
 legacy parsing, adjudication, answer-layer defects, exclusions, provenance and the option spec
-handed to the option stage; :func:`finalize` builds the candidates (one call, ``build_options``),
-assigns balanced letters and ranks, and writes the ReSTI-schema rows, the exclusion records and the
-provenance records.
+handed to the option stage. :func:`finalize` prints each accepted answer (:func:`answer_text`),
+hands the rows and their option specs to the option stage (:mod:`resti_lib.options.stage`, the
+code ``resti reoption`` runs: candidates, balanced letters, evidence) and writes the ReSTI-schema
+rows, the exclusion records and the provenance records. The options built here are the options the
+release ships: the release stage collects them unchanged (every choice of the stage — groups,
+letters, shared sets — lies within one task).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from .. import LETTERS, SCENE_OF_SOURCE
+from .. import SCENE_OF_SOURCE
 from .. import defaults as D
 from .. import values as V
 from ..adjudicate import Diagnosis, Rule, compare_scalar
@@ -43,19 +46,17 @@ from ..contract import MISSING_DEFECTS, Contract
 from ..errors import ContractError
 from ..io.benchmark import atomic_write_bytes, jsonl_text, parse_key
 from ..measure import Measured, measure
-from ..options import builders as B
-from ..rng import balanced_schedule, row_rng
 
 KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label")
 
 
 @dataclass
 class AnswerSpec:
-    """The reconstructed answer in a form the option builders take.
+    """The reconstructed answer, printed by :func:`answer_text`.
 
     ``kind``: scalar (``value`` in ``unit``), angle (degrees), box (``value`` = dict centre/lwh/R),
     pose (4x4), trajectory (segments), label (``value`` text, ``labels`` the five choices).
-    ``options``: keyword overrides for the builder (e.g. ``center_sigma``).
+    ``options``: printing options (``compact`` pose JSON, ``adapt_decimals`` for small scalars).
     """
 
     kind: str
@@ -258,47 +259,41 @@ def _round_floats(obj, nd: int = 6):
 # ------------------------------------------------------------------------------- option stage
 
 
-def builder_params(spec: AnswerSpec, params: dict) -> dict:
-    """The builder keyword arguments of an answer: the task's ``options: {kind: {...}}`` overridden
-    by the answer's own ``options``."""
-    return {**params.get(spec.kind, {}), **spec.options}
-
-
-def option_spec(o: Outcome, spec: AnswerSpec, *, rule: dict | None, observables: dict, params: dict) -> dict:
-    """What the option stage needs to build the candidates of one accepted row, in one place:
-    ``{kind, unit, decimals, rule, floors, builder, observables}`` (``floors``: the separation
-    floors, ``builder``: the builder settings of this row)."""
-    kw = builder_params(spec, params)
+def option_spec(o: Outcome, spec: AnswerSpec, *, rule: dict | None, observables: dict) -> dict:
+    """What the task knows of one accepted row beyond its ReSTI fields, for the option stage:
+    ``{kind, unit, decimals, rule, observables, labels}``. The stage reads the question's observables
+    from the row itself (as ``resti reoption`` does); ``labels`` (the five choices of a categorical
+    answer) come from here."""
     obs = {"time_start": o.time_start, "time_end": o.time_end,
            "window_s": None if o.time_start is None or o.time_end is None else float(o.time_end) - float(o.time_start),
            "source": o.source, "sequence": o.contract.get("sequence"), "camera": o.contract.get("camera"),
            **observables}
-    out = {"kind": spec.kind, "unit": spec.unit, "decimals": spec.decimals, "rule": rule,
-           "floors": {k: v for k, v in kw.items() if k.startswith("min_")},
-           "builder": {k: v for k, v in kw.items() if not k.startswith("min_")}, "observables": obs}
+    out = {"kind": spec.kind, "unit": spec.unit, "decimals": spec.decimals, "rule": rule, "observables": obs}
     if spec.labels is not None:
         out["labels"] = list(spec.labels)
     return json.loads(_json(_round_floats(out, 9)))
 
 
-def build_options(spec: AnswerSpec, *, rng, target_rank: int | None, params: dict) -> B.Options:
-    """Dispatch to the builder of the answer's kind, with params merged (spec overrides params)."""
-    kw = builder_params(spec, params)
+def answer_text(spec: AnswerSpec) -> str:
+    """The answer string of an accepted row (``Answer Detail``), printed by :mod:`resti_lib.values`.
+
+    Scalars below 20 printed units take more decimals (0.063 m prints as ``0.063m``), unless the
+    task says ``adapt_decimals: False``."""
+    kw = spec.options or {}
     if spec.kind == "scalar":
-        dec = B.scalar_decimals(float(spec.value), spec.decimals) if kw.pop("adapt_decimals", True) else spec.decimals
-        return B.scalar_options(float(spec.value), spec.unit, rng=rng, decimals=dec, target_rank=target_rank,
-                                **kw)
+        dec = V.adaptive_decimals(float(spec.value), spec.decimals) if kw.get("adapt_decimals", True) else spec.decimals
+        return V.format_scalar(float(spec.value), spec.unit, dec)
     if spec.kind == "angle":
-        return B.angle_options(float(spec.value), rng=rng, decimals=spec.decimals, target_rank=target_rank, **kw)
+        return V.format_angle(float(spec.value), spec.decimals)
     if spec.kind == "box":
         v = spec.value
-        return B.box_options(v["center"], v["lwh"], v["R"], rng=rng, **kw)
+        return V.format_box(v["center"], v["lwh"], v["R"])
     if spec.kind == "pose":
-        return B.pose_options(np.asarray(spec.value), rng=rng, decimals=spec.decimals, **kw)
+        return V.format_pose(np.asarray(spec.value), spec.decimals, compact=bool(kw.get("compact", False)))
     if spec.kind == "trajectory":
-        return B.trajectory_options(spec.value, rng=rng, **kw)
+        return V.format_trajectory(spec.value)
     if spec.kind == "label":
-        return B.label_options(spec.value, list(spec.labels or []))
+        return str(spec.value)
     raise ContractError(f"unknown answer kind {spec.kind!r} (one of {', '.join(KINDS)})")
 
 
@@ -316,36 +311,47 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
              ) -> TaskResult:
     """Options, letters, ReSTI rows, exclusion records and provenance for one task's outcomes.
 
-    Ranks (scalar and angle answers) are balanced within each (task, source); letters within each
-    task. Outcomes come back in legacy row order.
+    ``option_params``: overrides of ``params/options.yaml``. A row whose options cannot be built
+    under the constraints is excluded (``no_valid_options``), never shipped with weaker options.
+    Outcomes come back in legacy row order.
     """
-    option_params = option_params or {}
+    from ..options.spec import load_option_params
+    from ..options.stage import build_options
+
     outcomes = sorted(outcomes, key=lambda o: o.row)
     by_row = {int(r["row"]): r for r in legacy.to_dict("records")}
-    acc_keys = [o.key for o in outcomes if o.verdict != "excluded"]
-    letters = {}
-    for task in sorted({o.task for o in outcomes}):
-        letters.update(balanced_schedule([o.key for o in outcomes if o.task == task and o.key in acc_keys],
-                                         list(LETTERS), seed=seed, group=f"letters|{task}"))
-    ranks = {}
-    for grp in sorted({(o.task, o.source) for o in outcomes}):
-        ks = [o.key for o in outcomes if (o.task, o.source) == grp and o.verdict != "excluded"
-              and o.answer is not None and o.answer.kind in ("scalar", "angle")]
-        ranks.update(balanced_schedule(ks, [1, 2, 3, 4, 5], seed=seed, group=f"ranks|{grp[0]}|{grp[1]}"))
+    rows, extras, index = [], {}, {}
+    for o in outcomes:
+        if o.verdict == "excluded":
+            continue
+        legacy_row = by_row[o.row]
+        rid = resti_id(o.task, o.key)
+        try:
+            detail = answer_text(o.answer)
+        except (ValueError, KeyError, TypeError) as e:
+            o.exclude("no_valid_options", option_error=f"answer cannot be printed: {e}")
+            continue
+        index[rid] = o
+        extras[rid] = o.option_spec or ({"labels": list(o.answer.labels or [])} if o.answer.kind == "label" else {})
+        rows.append({
+            "Video": legacy_row["Video"], "Source": o.source, "Task": o.task, "QType": "Single Choice",
+            "Question": o.question, "Prompt": o.prompt if o.prompt is not None else (legacy_row.get("Prompt") or ""),
+            "time_start": float(o.time_start), "time_end": float(o.time_end), "Candidates": {}, "Answer": None,
+            "Answer Detail": detail, "ID": int(legacy_row["ID"]), "scene": SCENE_OF_SOURCE[o.source],
+            "ReSTI ID": rid, "Legacy Row Key": o.key})
+    built, ev, failed = build_options(rows, seed=seed, params=load_option_params(option_params), extras=extras,
+                                      on_failure="skip")
+    for rid, problem in failed.items():
+        index[rid].exclude("no_valid_options", option_error=problem)
+    opt_ev = {r["rid"]: {k: v for k, v in r.items() if k not in ("rid", "task", "source") and v == v}
+              for r in ev.to_dict("records")} if len(ev) else {}
+    shipped = {r["ReSTI ID"]: r for r in built if r["ReSTI ID"] not in failed}
     accepted, excluded, prov = [], [], []
     for o in outcomes:
         legacy_row = by_row[o.row]
-        cands, letter, new_detail, opt_ev = None, None, None, {}
-        if o.verdict != "excluded":
-            rng = row_rng(seed, o.key, "options")
-            try:
-                opts = build_options(o.answer, rng=rng, target_rank=ranks.get(o.key), params=option_params)
-                cands, letter = B.assign_letters(opts, letters[o.key], rng)
-                new_detail = cands[letter]
-                opt_ev = opts.evidence
-            except B.OptionError as e:
-                o.exclude("no_valid_options", option_error=str(e))
         rid = resti_id(o.task, o.key)
+        row = shipped.get(rid) if o.verdict != "excluded" else None
+        new_detail = row["Answer Detail"] if row else None
         if o.verdict == "excluded":
             rec = {"key": o.key, "legacy_id": legacy_row.get("ID"), "legacy_video": o.video, "source": o.source,
                    "task": o.task, "reason_codes": list(o.reasons) or ["unsupported_question"],
@@ -353,19 +359,15 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
                    "verification_evidence": _round_floats(o.evidence)}
             excluded.append(json.loads(_json(rec)))
         else:
-            accepted.append({
-                "Video": legacy_row["Video"], "Source": o.source, "Task": o.task, "QType": "Single Choice",
-                "Question": o.question, "Prompt": o.prompt if o.prompt is not None else (legacy_row.get("Prompt") or ""),
-                "time_start": float(o.time_start), "time_end": float(o.time_end), "Candidates": cands,
-                "Answer": letter, "Answer Detail": new_detail, "ID": int(legacy_row["ID"]),
-                "scene": SCENE_OF_SOURCE[o.source], "ReSTI ID": rid, "Legacy Row Key": o.key})
+            accepted.append(row)
+        evidence = {**o.evidence, **({"options": opt_ev[rid]} if row is not None and rid in opt_ev else {})}
         prov.append({
             "row": o.row, "key": o.key, "resti_id": rid if o.verdict != "excluded" else None,
             "task": o.task, "source": o.source, "video": o.video, "verdict": o.verdict,
             "reasons": _json(o.reasons), "defects": _json(sorted(set(o.defects))),
             "contract": _json(_round_floats(o.contract)), "source_files": _json(o.source_files),
             "frames": _json(_round_floats(o.frames)), "transform_chain": o.transform_chain,
-            "evidence": _json(_round_floats({**o.evidence, **({"options": opt_ev} if opt_ev else {})})),
+            "evidence": _json(_round_floats(evidence)),
             "legacy_detail": o.legacy_detail, "new_detail": new_detail,
             "option_spec": _json(o.option_spec) if o.option_spec is not None and o.verdict != "excluded" else None,
         })
@@ -390,5 +392,5 @@ def outcome_table(outcomes: list[Outcome]) -> pd.DataFrame:
                          for o in outcomes])
 
 
-__all__ = ["AnswerSpec", "Case", "Exclude", "Outcome", "Task", "TaskResult", "asdict", "build_options", "finalize",
+__all__ = ["AnswerSpec", "Case", "Exclude", "Outcome", "Task", "TaskResult", "answer_text", "asdict", "finalize",
            "option_spec", "outcome_table", "resti_id", "slug", "write_task_outputs"]

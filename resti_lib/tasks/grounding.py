@@ -385,12 +385,6 @@ def rewrite_question(source: str, description: str, view: FrameView) -> str:
             f"{view.t:.6f} seconds), {what} in the OpenCV camera frame {AXES}? {QUESTION_TAIL}")
 
 
-def center_sigma(source: str, lwh: np.ndarray, p: dict) -> float:
-    """Source-scaled centre spread of the distractor boxes: ``floor + frac * |lwh|`` (metres)."""
-    cs = p["center_sigma"][source]
-    return float(cs["floor"]) + float(cs["frac"]) * float(np.linalg.norm(lwh))
-
-
 def box_convention(evidence: list[dict]) -> dict:
     """The box convention of the legacy ScanNet ``C_lwh``: the majority of the rows whose legacy sizes
     match exactly one of the tight box and the annotation-frame axis-aligned box (counts, decision)."""
@@ -540,8 +534,7 @@ class Grounding(Task):
         o.time_start = o.time_end = float(view.t)
         case.observables.update(subject=noun_phrase(desc), subject_class=label, frame=dict(view.frame),
                                 T_world_from_cam=view.T_world_from_cam)
-        case.answer = AnswerSpec(kind="box", value=box.answer_value(), unit="m", decimals=3,
-                                 options={"center_sigma": center_sigma(c.source, box.lwh, p)})
+        case.answer = AnswerSpec(kind="box", value=box.answer_value(), unit="m", decimals=3)
 
     def diagnose(self, case: Case) -> None:
         p, legacy, s = case.params, case.legacy, case.state

@@ -60,19 +60,6 @@ VERDICT_REASON = ("the legacy question names no plane or convention; the value i
                   "heading change of the optical axis")
 
 
-def option_spread(theta: float, p: dict) -> tuple[float, float]:
-    """Per-row bounds of the distractor spread (degrees), scaled with the answer's magnitude.
-
-    ``high = clip(frac * |theta|, min_high, max_high)``, ``low = min(low, high)``. A heading change
-    of 1 degree gets alternatives a few degrees away, one of 90 degrees up to 30 degrees away. With a
-    fixed wide spread, answers near 0 (straight drives: about half of the real rows) would be the
-    candidate closest to zero, hence the shortest printed string, far more often than 1/5.
-    """
-    sp = p["spread_deg"]
-    high = min(float(sp["max_high"]), max(float(sp["min_high"]), float(sp["frac"]) * abs(float(theta))))
-    return (min(float(sp["low"]), high), high)
-
-
 # ==================================================================================== tracks
 
 
@@ -255,8 +242,7 @@ class Orientation(Task):
         o.time_start, o.time_end = t0, t1_used
         case.value = theta
         case.observables.update(subject="the camera", subject_class="camera", up=list(tracks.up))
-        case.answer = AnswerSpec(kind="angle", value=theta, unit="°", decimals=2,
-                                 options={"spread": option_spread(theta, p)})
+        case.answer = AnswerSpec(kind="angle", value=theta, unit="°", decimals=2)
 
     def diagnose(self, case: Case) -> None:
         p, conv, legacy = case.params, case.state["conv"], case.legacy

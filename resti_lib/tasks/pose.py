@@ -26,9 +26,8 @@ Diagnosis
   one that no sample reproduces is ``value_mismatch``.
 - Comparison rule: entry-wise, half a unit of the last printed place + ``compare_abs_tol``.
 
-Options: :func:`resti_lib.options.builders.pose_options` with rotations drawn about the world up
-(distinct rotations, exact before rounding) and a source-scaled ``trans_sigma`` =
-``max(floor[source], trans_sigma_frac * |p(target) - p(premise)|)``.
+Options: the option stage draws each distractor as a motion from the premise like the answers'
+motions (:mod:`resti_lib.options.stage`), printed like the answer (compact JSON for Waymo).
 """
 
 from __future__ import annotations
@@ -217,11 +216,6 @@ def question_text(source: str, t0: float, t1: float, premise_text: str | None) -
             f"with OpenCV camera axes (+X right, +Y down, +Z forward); translation in meters.")
 
 
-def trans_sigma(source: str, displacement_m: float, params: dict) -> float:
-    """Distractor translation spread: ``max(floor[source], trans_sigma_frac * displacement)``."""
-    return float(max(float(params["trans_sigma_floor"][source]), float(params["trans_sigma_frac"]) * float(displacement_m)))
-
-
 def camera_track(ctx, c: Contract, params: dict) -> tuple[PoseTrack, tuple, list[str]]:
     """The camera track of the contract's sequence, the world up in its frame and the files read."""
     if c.source == "ScanNet":
@@ -315,8 +309,7 @@ class Pose(Task):
             o.defects.append("premise_equals_answer")
             raise Exclude("premise_equals_target", premise_time=t0, target_time=t1, displacement_m=disp,
                           rotation_deg=rot, same_time=bool(same_time), printed_identical=bool(same_print))
-        sig = trans_sigma(src, disp, p)
-        o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot, "trans_sigma_m": sig}
+        o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot}
         o.prompt = ""
         o.time_start, o.time_end = min(t0, t1), max(t0, t1)
         case.state.update(track=track, T0=T0, t0=t0, t1=t1, compact=compact)
@@ -324,7 +317,7 @@ class Pose(Task):
         case.observables.update(subject="the camera", subject_class="camera", premise=T0, premise_time=t0,
                                 target_time=t1, up=list(up))
         case.answer = AnswerSpec(kind="pose", value=T1, decimals=dec,
-                                 options={"trans_sigma": sig, "up": list(up), "compact": compact})
+                                 options={"compact": compact})
 
     def diagnose(self, case: Case) -> None:
         p, legacy, T1 = case.params, case.legacy, case.value
@@ -420,6 +413,5 @@ __all__ = [
     "resolve_premise",
     "rotation_angle_deg",
     "timestamp_search",
-    "trans_sigma",
     "wrong_timestamp_summary",
 ]

@@ -27,8 +27,9 @@ that frame, with ``d = c_A - c_B`` (OpenCV axes):
 Both values are the measure operators ``mounted_relation`` and ``relative_position``
 (:mod:`resti_lib.measure.relations`).
 
-Options are the fixed five labels of the source (``label_options``), so the label prior of a
-task/source (the attack ``label_prior``) cannot be removed by the options: it is reported.
+Options are the fixed five labels of the source in a balanced letter order, so the label prior of
+a task/source (the attack ``label_prior``) cannot be removed by the options: it is measured
+(:mod:`resti_lib.options.structural`).
 """
 
 from __future__ import annotations

@@ -154,10 +154,11 @@ def _complete(case: Case) -> None:
     c.missing = []
     c.format = {"kind": a.kind, "unit": a.unit, "decimals": a.decimals,
                 **({"labels": list(a.labels)} if a.labels is not None else {})}
-    spec = option_spec(o, a, rule=case.rule, observables=case.observables, params=case.params.get("options") or {})
-    c.distractors = {"policy": f"{a.kind} options: four exchangeable draws around the answer, separated by "
-                               "the floors, letters balanced" if a.kind != "label" else
-                               "the fixed labels of the source", "floors": spec["floors"], "rule": case.rule}
+    spec = option_spec(o, a, rule=case.rule, observables=case.observables)
+    c.distractors = {"policy": "four draws exchangeable with the answer from the answers of its task and source "
+                               "given the question's observables (params/options.yaml), separated and physically "
+                               "possible, letters balanced" if a.kind != "label" else
+                               "the fixed labels of the source", "rule": case.rule}
     o.option_spec = spec
 
 
@@ -241,7 +242,7 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
         o.legacy_detail = str(r.get("Answer Detail"))
         outcomes.append(o.exclude("malformed_row", field=p.field, problem=p.message))
     _answer_layer(outcomes, mine)
-    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)), option_params=params.get("options") or {})
+    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)))
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(t.name)
     write_task_outputs(result, out_dir)
     return TaskRun(t.name, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)

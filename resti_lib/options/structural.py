@@ -1,0 +1,241 @@
+"""What options cannot fix: blind leaks that live in the answers or the questions, with their size.
+
+The option stage makes the five candidates of a row exchangeable given what the question states.
+Some leaks survive any choice of candidates, because they are properties of the answers themselves
+or of other fields a blind reader sees. :func:`structural_leaks` measures each of them per
+(task, source): the rows it affects and the accuracy a blind rule exploiting it reaches on those
+rows at least (``accuracy_on_affected``; chance is 1/5), so the attack tables can be read
+against it:
+
+* ``floor_concentration`` — more answers fall inside a window narrower than the separation floor
+  allows candidates to share than five exchangeable candidates can hold: of any answers inside a
+  window holding at most ``m`` separated candidates, an attacker picking inside the window is right
+  at least ``1/m`` of the time (the Waymo heading changes cluster within a degree of zero, while
+  Orientation options must be 1 degree apart);
+* ``rotation_repeat`` — Pose answers whose printed rotation is the premise's printed rotation
+  (a car driving straight); printed rotations of the candidates must differ, so at most one
+  candidate carries it;
+* ``same_video_reveal`` — a Pose answer printed verbatim as the premise of another question of the
+  same video; hidden only where the video has four other premises to use as distractors;
+* ``zero_slot`` — exact zeros (stationary objects) are one printed string: when more than a fifth of
+  a group is zero, that string is the answer in more than a fifth of the rows where it appears;
+* ``label_prior`` — the most frequent label of a categorical task;
+* ``metadata`` — an answer that follows from the video name (the Waymo camera mount names the
+  Spatial Relation label): the accuracy of the best camera -> label rule, leave one out.
+
+:func:`evaluation_subset` chooses, without touching the release, the rows of a documented subset
+under which the label prior, metadata, same-video and zero-slot attacks are at chance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, defaultdict
+
+import numpy as np
+import pandas as pd
+
+from .. import values as V
+from ..errors import InputError
+from ..rng import stable_seed
+from .spec import angle_gap, load_option_params, scalar_gap, spec_of
+
+CHANCE = 0.2
+COLUMNS = ["task", "source", "leak", "n_rows", "rows_affected", "accuracy_on_affected", "detail", "remedy"]
+
+
+def _specs(records: list[dict]) -> list:
+    out = []
+    for i, r in enumerate(records):
+        try:
+            out.append(spec_of(r, str(r.get("ReSTI ID") or i)))
+        except InputError:
+            out.append(None)
+    return out
+
+
+def _floor_bound(values: np.ndarray, gaps: np.ndarray) -> tuple[float, str, int, int]:
+    """The window of sorted answers with the largest ``share / m``, ``m`` the most separated
+    candidates it can hold (width / floor + 1): (share / m, description, answers inside, m)."""
+    order = np.argsort(values)
+    x, g = values[order], gaps[order]
+    n = len(x)
+    best, where, inside, slots = 0.0, "", 0, 1
+    j = 0
+    for i in range(n):
+        j = max(j, i)
+        while j + 1 < n and x[j + 1] - x[i] < 4 * g[j + 1]:
+            j += 1
+        for k in range(i, j + 1):
+            m = int(math.floor((x[k] - x[i]) / max(g[k], 1e-12) + 1e-9)) + 1
+            share = (k - i + 1) / n
+            if share / m > best:
+                best, inside, slots = share / m, k - i + 1, m
+                where = f"{k - i + 1} of {n} answers within [{x[i]:g}, {x[k]:g}], where {m} separated candidate(s) fit"
+    return best, where, inside, slots
+
+
+def structural_leaks(records: list[dict], params: dict | None = None) -> pd.DataFrame:
+    """One row per (task, source, leak) that options cannot remove (see the module docstring)."""
+    params = params or load_option_params()
+    specs = _specs(records)
+    cells: dict[tuple, list[int]] = defaultdict(list)
+    for i, r in enumerate(records):
+        cells[(str(r.get("Task")), str(r.get("Source")))].append(i)
+    out = []
+
+    def add(task, source, leak, n, affected, acc, detail, remedy):
+        out.append({"task": task, "source": source, "leak": leak, "n_rows": n, "rows_affected": int(affected),
+                    "accuracy_on_affected": round(float(acc), 4), "detail": detail, "remedy": remedy})
+
+    for (task, source), idx in sorted(cells.items()):
+        sp = [specs[i] for i in idx if specs[i] is not None]
+        n = len(idx)
+        if not sp:
+            continue
+        kind = sp[0].kind
+        if kind in ("scalar", "angle"):
+            by_q: dict[str, list] = defaultdict(list)
+            for s in sp:
+                by_q[s.obs.quantity].append(s)
+            for q, ss in sorted(by_q.items()):
+                vals = np.array([s.value.value for s in ss], float)
+                nonzero = [s for s in ss if kind == "angle" or s.value.value > 0]
+                if kind == "angle":
+                    gaps = np.array([angle_gap(s, params) for s in nonzero])
+                else:
+                    gaps = np.array([max(scalar_gap(s, params, s.value.value),
+                                         params["separation"]["scalar"]["min_rel_gap"] * s.value.value)
+                                     for s in nonzero])
+                if len(nonzero) >= 5:
+                    nz = np.array([s.value.value for s in nonzero], float)
+                    bound, where, inside, slots = _floor_bound(nz, gaps)
+                    if bound > CHANCE and inside >= 5:
+                        add(task, source, "floor_concentration", n, inside, 1.0 / slots, f"{q}: {where}",
+                            "none by options; re-contract the questions or accept and report")
+                zeros = int((vals <= 0).sum()) if kind == "scalar" else 0
+                if zeros and zeros / len(ss) > CHANCE:
+                    carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
+                    add(task, source, "zero_slot", n, carriers, zeros / carriers,
+                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in "
+                        f"{carriers} rows",
+                        "evaluation subset keeps zero answers at one row in five")
+        if kind == "pose":
+            same = 0
+            for s in sp:
+                o = s.obs
+                if o.premise is not None and o.premise_text is not None:
+                    pr = V.parse(o.premise_text)
+                    if np.array_equal(np.round(np.array(pr.R), 6), np.round(np.array(s.value.R), 6)):
+                        same += 1
+            if same / n > CHANCE:
+                add(task, source, "rotation_repeat", n, same, 1.0,
+                    f"{same} of {n} answers print the premise's rotation; candidates' printed rotations must differ",
+                    "none by options (print rotations at more decimals in the question contract)")
+            premises: dict[str, dict] = defaultdict(dict)
+            for s in sp:
+                if s.obs.premise_text:
+                    premises[s.obs.video][V.parse(s.obs.premise_text).key()] = s.rid
+            acc, revealed = 0.0, 0
+            for s in sp:
+                prem = premises.get(s.obs.video, {})
+                key = s.value.key()
+                if key in prem and prem[key] != s.rid:
+                    revealed += 1
+                    own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
+                    others = len([k for k in prem if k not in (key, own)])  # usable as distractors
+                    acc += 1.0 / (1 + min(4, others))
+            if revealed:
+                add(task, source, "same_video_reveal", n, revealed, acc / revealed,
+                    f"{revealed} of {n} answers are printed as another question's premise in the same video",
+                    "evaluation subset keeps one question of each revealing pair")
+        if kind == "label":
+            c = Counter(s.detail for s in sp)
+            lab, top = c.most_common(1)[0]
+            if top / n > CHANCE:
+                add(task, source, "label_prior", n, n, top / n, f"{top} of {n} answers are {lab!r}",
+                    "evaluation subset balances the labels")
+            cams = [(s.obs.camera, s.detail) for s in sp if s.obs.camera is not None]
+            if len(cams) >= 5:
+                by_cam: dict = defaultdict(Counter)
+                for cam, lab in cams:
+                    by_cam[cam][lab] += 1
+                hits = 0
+                for cam, lab in cams:  # leave one out: the majority label of the other rows of the camera
+                    cnt = by_cam[cam].copy()
+                    cnt[lab] -= 1
+                    best = cnt.most_common(1)[0] if sum(cnt.values()) else (None, 0)
+                    hits += best[0] == lab
+                if hits / len(cams) > CHANCE:
+                    add(task, source, "metadata", n, len(cams), hits / len(cams),
+                        f"the camera number in the video name predicts the label in {hits} of {len(cams)} rows",
+                        "evaluation subset leaves out cells whose label follows from the video name")
+    return pd.DataFrame(out, columns=COLUMNS)
+
+
+def evaluation_subset(records: list[dict], leaks: pd.DataFrame | None = None, *, seed: int = 0) -> dict:
+    """A documented subset of the rows (ids and the rule) under which the label prior, metadata,
+    same-video reveal and zero-slot attacks are at chance. The release itself is not changed."""
+    leaks = structural_leaks(records) if leaks is None else leaks
+    rid = [str(r.get("ReSTI ID") or i) for i, r in enumerate(records)]
+    specs = _specs(records)
+    drop: dict[str, str] = {}
+    rng = np.random.default_rng(stable_seed(seed, "evaluation_subset"))
+    meta_cells = {(t, s) for t, s, lk, b in zip(leaks["task"], leaks["source"], leaks["leak"],
+                                                 leaks["accuracy_on_affected"]) if lk == "metadata" and b >= 0.9}
+    for i, r in enumerate(records):
+        if (r.get("Task"), r.get("Source")) in meta_cells:
+            drop[rid[i]] = "metadata"
+    # balanced labels per (task, source) of categorical tasks
+    groups: dict[tuple, dict[str, list[int]]] = defaultdict(lambda: defaultdict(list))
+    for i, s in enumerate(specs):
+        if s is not None and s.kind == "label" and rid[i] not in drop:
+            groups[(s.task, s.source)][s.detail].append(i)
+    for _, by in sorted(groups.items()):
+        m = min(len(v) for v in by.values())
+        for lab in sorted(by):
+            ids = by[lab]
+            keep = set(rng.permutation(len(ids))[:m].tolist())
+            for j, i in enumerate(ids):
+                if j not in keep:
+                    drop[rid[i]] = "label_balance"
+    # one question of each same-video revealing group of Pose rows
+    premises: dict[str, dict] = defaultdict(dict)
+    for i, s in enumerate(specs):
+        if s is not None and s.kind == "pose" and s.obs.premise_text:
+            premises[s.obs.video][V.parse(s.obs.premise_text).key()] = i
+    for i, s in enumerate(specs):
+        if s is None or s.kind != "pose" or rid[i] in drop:
+            continue
+        j = premises.get(s.obs.video, {}).get(s.value.key())
+        if j is not None and j != i and rid[j] not in drop:
+            drop[rid[i]] = "same_video_reveal"
+    # zero answers at most one in five of their group
+    zgroups: dict[tuple, list[int]] = defaultdict(list)
+    for i, s in enumerate(specs):
+        if s is not None and s.kind == "scalar" and rid[i] not in drop:
+            zgroups[(s.task, s.source, s.obs.quantity)].append(i)
+    for _, ids in sorted(zgroups.items()):
+        zeros = [i for i in ids if specs[i].value.value <= 0]
+        nz = len(ids) - len(zeros)
+        allow = nz // 4
+        if len(zeros) > allow:
+            pick = set(rng.permutation(len(zeros))[:allow].tolist())
+            for j, i in enumerate(zeros):
+                if j not in pick:
+                    drop[rid[i]] = "zero_slot"
+    keep = [r for r in rid if r not in drop]
+    return {
+        "rule": ("Rows of the release kept for a blind-balanced evaluation: cells whose answer follows from the "
+                 "video name are left out; categorical answers are balanced to the rarest label per task and "
+                 "source; of Pose questions that print each other's answer as premise, one is kept; exact-zero "
+                 "answers are kept at most one in five of their group. Selection seeded; the release is unchanged."),
+        "seed": int(seed),
+        "n_release": len(rid),
+        "n_kept": len(keep),
+        "dropped_by_reason": dict(sorted(Counter(drop.values()).items())),
+        "ids": keep,
+    }
+
+
+__all__ = ["structural_leaks", "evaluation_subset", "COLUMNS"]

@@ -1,0 +1,250 @@
+"""The option stage: exchangeable candidates given the question, separation, plausibility, formatting.
+
+Every attack below is written here, independently of the attack suite: it knows the true
+distribution the synthetic answers were drawn from (a stronger reader than any learned one), and
+it is run against a naive construction too, so each test can fail.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import binomtest, norm
+
+from resti_lib import LETTERS
+from resti_lib import values as V
+from resti_lib.options.checks import ROW_CHECKS, parse_row
+from resti_lib.options.stage import build_options, rotation_preimage
+from resti_lib.options.structural import evaluation_subset, structural_leaks
+
+
+def _row(i, task, source, question, detail, video=None, t0=0.0, t1=5.0, labels=None):
+    cands = dict(zip(LETTERS, labels)) if labels else {L: detail for L in LETTERS}
+    return {"Video": video or f"v{i}.mp4", "Source": source, "Task": task, "QType": "Single Choice",
+            "Question": question, "Prompt": "", "time_start": t0, "time_end": t1, "Candidates": cands,
+            "Answer": "A", "Answer Detail": detail, "ID": i, "scene": "outdoor", "ReSTI ID": f"r{i}",
+            "Legacy Row Key": f"k{i}"}
+
+
+def _displacement_rows(n=400, seed=0):
+    """Camera displacements of a car: rate ~ lognormal(log 8, 0.4) m/s over windows of 0.5-15 s."""
+    rng = np.random.default_rng(seed)
+    rows, truth = [], []
+    for i in range(n):
+        w = float(np.round(rng.uniform(0.5, 15.0), 1))
+        rate = float(np.exp(rng.normal(math.log(8.0), 0.4)))
+        q = (f"What is the displacement (straight-line distance) of the camera between t=1 s and "
+             f"t={1 + w:g} s? (unit: m)")
+        rows.append(_row(i, "Displacement & Path Length", "Waymo", q, V.format_scalar(rate * w, "m"),
+                         video=f"seg{i}_camera_1.mp4", t0=1.0, t1=1.0 + w))
+        truth.append(w)
+    return rows, truth
+
+
+def _implied_rate_attack(rows, windows) -> float:
+    """Pick the candidate whose implied rate is most probable under the true rate distribution."""
+    hits = 0.0
+    for r, w in zip(rows, windows):
+        dens = {L: norm.logpdf(math.log(max(V.parse(s).value, 1e-6) / w), math.log(8.0), 0.4)
+                - math.log(max(V.parse(s).value, 1e-6)) for L, s in r["Candidates"].items()}
+        best = max(dens.values())
+        top = [L for L, d in dens.items() if d == best]
+        hits += (r["Answer"] in top) / len(top)
+    return hits / len(rows)
+
+
+def test_displacements_conditioned_on_the_window_defeat_the_implied_rate():
+    rows, windows = _displacement_rows()
+    out, ev, _ = build_options(rows, seed=0)
+    acc = _implied_rate_attack(out, windows)
+    assert binomtest(round(acc * len(out)), len(out), 0.2, alternative="greater").pvalue > 0.01, acc
+    # the same attack against distractors drawn from the population of displacements, ignoring the
+    # window, finds the answer far above chance: the test can fail
+    rng = np.random.default_rng(1)
+    pool = [r["Answer Detail"] for r in rows]
+    naive = []
+    for r in rows:
+        others = [s for s in rng.choice(pool, 12) if s != r["Answer Detail"]][:4]
+        c = dict(zip(LETTERS, [r["Answer Detail"], *others]))
+        naive.append({**r, "Candidates": c, "Answer": "A"})
+    assert _implied_rate_attack(naive, windows) > 0.4
+    # every distractor is physically possible for a car over its window, and separated
+    for r, w in zip(out, windows):
+        vals = sorted(V.parse(s).value for s in r["Candidates"].values())
+        assert max(vals) / w <= 45.0 + 1e-9
+        assert all(b - a >= 0.01 - 1e-9 for a, b in zip(vals, vals[1:]))
+
+
+def test_orientation_options_at_least_one_degree_apart():
+    rng = np.random.default_rng(2)
+    q = ("Between source pose timestamps 0.000000 and 19.800000 seconds, what is the signed horizontal "
+         "heading change of the camera?")
+    rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(float(rng.normal(0, 3.0))), t1=19.8)
+            for i in range(80)]
+    out, _, _ = build_options(rows, seed=0)
+    for r in out:
+        a = np.array([V.parse(s).value for s in r["Candidates"].values()])
+        d = np.abs((a[:, None] - a[None, :] + 180.0) % 360.0 - 180.0)
+        assert d[np.triu_indices(5, 1)].min() >= 1.0 - 1e-9, r["Candidates"]
+        assert all(-180.0 <= x < 180.0 for x in a)
+        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"])) is None
+    # a planted pair half a degree apart is named by the separation check
+    bad = dict(out[0])
+    vals = sorted(V.parse(s).value for s in bad["Candidates"].values())
+    other = next(L for L, s in bad["Candidates"].items() if L != bad["Answer"])
+    bad["Candidates"] = {**bad["Candidates"], other: V.format_angle(V.parse(bad["Answer Detail"]).value + 0.5)}
+    assert vals and "closer than the floor" in ROW_CHECKS["separation"](parse_row(bad, "x"))
+
+
+def _box_rows(n=160, seed=3):
+    """Boxes of one class whose log edges are strongly correlated (corr 0.9)."""
+    rng = np.random.default_rng(seed)
+    rows, logd = [], []
+    cov = 0.09 * np.array([[1, 0.9, 0.9], [0.9, 1, 0.9], [0.9, 0.9, 1]])
+    for i in range(n):
+        ld = rng.multivariate_normal(np.log([1.8, 0.9, 0.8]), cov)
+        c = [rng.uniform(-1, 1), rng.uniform(-0.3, 0.3), rng.uniform(1.5, 5)]
+        R = Rotation.from_euler("xz", [-90, rng.uniform(-180, 180)], degrees=True).as_matrix()
+        q = (f"At {i}.0 seconds, what is the oriented 3D bounding box of the wooden table in the ScanNet "
+             f"OpenCV camera frame (+X right, +Y down, +Z forward)?")
+        rows.append(_row(i, "3D Video Grounding", "ScanNet", q, V.format_box(c, np.exp(ld), R),
+                         video=f"scene{i:04d}_00.mp4", t0=float(i), t1=float(i)))
+        logd.append(ld)
+    return rows, np.array(logd), cov
+
+
+def test_box_edges_drawn_jointly():
+    rows, logd, cov = _box_rows()
+    out, _, _ = build_options(rows, seed=0)
+    dist = np.array([np.log(V.parse(s).lwh) for r in out for L, s in r["Candidates"].items() if L != r["Answer"]])
+    corr = np.corrcoef(dist, rowvar=False)
+    assert corr[0, 1] > 0.6 and corr[0, 2] > 0.6, corr
+    # the true joint density of the edges picks the answer at chance
+    inv = np.linalg.inv(cov)
+    mu = np.log([1.8, 0.9, 0.8])
+    hits = 0.0
+    for r in out:
+        sc = {L: -0.5 * (np.log(V.parse(s).lwh) - mu) @ inv @ (np.log(V.parse(s).lwh) - mu)
+              for L, s in r["Candidates"].items()}
+        best = max(sc.values())
+        hits += (r["Answer"] in [L for L, v in sc.items() if v == best])
+    assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+    for r in out:
+        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"])) is None
+        assert ROW_CHECKS["format_consistency"](parse_row(r, r["ReSTI ID"])) is None
+
+
+def test_poses_drawn_as_motion_from_the_premise():
+    rng = np.random.default_rng(4)
+    rows, prem = [], []
+    for i in range(150):
+        h = rng.uniform(-180, 180)
+        Rp = Rotation.from_euler("zx", [h, -90], degrees=True).as_matrix()
+        tp = rng.uniform(-1000, 1000, 3)
+        w = float(rng.integers(2, 10))
+        turn = rng.choice([0.0, 0.0, 0.0, rng.normal(0, 20)])
+        R = Rotation.from_euler("z", turn, degrees=True).as_matrix() @ Rp
+        fwd = Rp[:, 2] * np.array([1, 1, 0])
+        fwd /= np.linalg.norm(fwd)
+        t = tp + fwd * np.exp(rng.normal(math.log(9.0), 0.3)) * w
+        P, T = np.eye(4), np.eye(4)
+        P[:3, :3], P[:3, 3], T[:3, :3], T[:3, 3] = Rp, tp, R, t
+        ptxt = V.format_pose(P, 2, compact=True)
+        q = (f"Given the camera pose at t=1 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
+             f"pose in the same coordinate frame at t={1 + w:g} s?")
+        rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
+                         video=f"seg{i}_camera_1.mp4", t0=1 + w, t1=1 + w))
+        prem.append((V.parse(ptxt).matrix, w))
+    out, _, _ = build_options(rows, seed=0)
+    hits_near, hits_rate = 0.0, 0.0
+    for r, (P, w) in zip(out, prem):
+        d = {L: np.linalg.norm(np.array(V.parse(s).t) - P[:3, 3]) for L, s in r["Candidates"].items()}
+        hits_near += r["Answer"] == min(d, key=d.get)
+        dens = {L: norm.logpdf(math.log(max(x, 1e-6) / w), math.log(9.0), 0.3) for L, x in d.items()}
+        hits_rate += r["Answer"] == max(dens, key=dens.get)
+    for hits in (hits_near, hits_rate):
+        assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+    for r in out:
+        p = parse_row(r, r["ReSTI ID"])
+        assert ROW_CHECKS["separation"](p) is None  # includes: no two candidates print one rotation
+        assert ROW_CHECKS["plausible_given_question"](p) is None
+        assert ROW_CHECKS["format_consistency"](p) is None
+
+
+def test_rotation_preimage_prints_as_the_answer():
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        R = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        P = np.round(R, 2)
+        Q = rotation_preimage(P, 2, rng)
+        assert np.abs(Q @ Q.T - np.eye(3)).max() < 1e-9 and np.linalg.det(Q) > 0
+        assert np.array_equal(np.round(Q, 2), P)
+
+
+def test_rows_of_one_video_asking_one_answer_share_their_candidates():
+    rng = np.random.default_rng(6)
+    q = "What is the width of the white refrigerator? (unit: m)"
+    rows = [_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(float(rng.uniform(0.3, 2.0)), "m"),
+                 video=f"scene{i % 20:04d}_00.mp4") for i in range(40)]
+    rows.append({**rows[3], "ReSTI ID": "dup", "Legacy Row Key": "kdup", "time_start": 9.0, "time_end": 9.0})
+    out, _, _ = build_options(rows, seed=0)
+    assert sorted(out[3]["Candidates"].values()) == sorted(out[-1]["Candidates"].values())
+
+
+def test_plausibility_and_format_checks_name_the_failing_candidate():
+    q = "What is the displacement (straight-line distance) of the camera between t=2 s and t=2.1 s? (unit: m)"
+    r = _row(0, "Displacement & Path Length", "Waymo", q, "1.20m", video="seg_camera_1.mp4", t0=2.0, t1=2.1)
+    r["Candidates"] = {"A": "1.20m", "B": "0.80m", "C": "71.00m", "D": "2.40m", "E": "3.10m"}
+    msg = ROW_CHECKS["plausible_given_question"](parse_row(r, "r0"))
+    assert msg and msg.startswith("C:") and "71.00m" in msg
+    r["Candidates"] = {"A": "1.20m", "B": "0.80m", "C": "1.700m", "D": "2.40m", "E": "3.10m"}
+    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0"))
+    assert msg and "C:" in msg
+
+
+def test_repeated_answers_still_get_valid_options():
+    # a group where every answer appears twice (a release repeated under new ids)
+    rng = np.random.default_rng(7)
+    base = [float(np.exp(rng.normal(2.5, 0.6))) for _ in range(60)]
+    q = "What is the magnitude of the average velocity of the camera between t=3 s and t=9 s? (unit: m/s)"
+    rows = [_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(base[i % 60], "m/s"),
+                 video=f"seg{i}_camera_1.mp4", t0=3.0, t1=9.0) for i in range(120)]
+    out, _, _ = build_options(rows, seed=0)
+    for r in out:
+        p = parse_row(r, r["ReSTI ID"])
+        assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["distinct_strings"](p) is None
+
+
+def test_same_input_and_seed_same_options():
+    rows, _ = _displacement_rows(60)
+    a, _, _ = build_options(rows, seed=1)
+    b, _, _ = build_options(rows, seed=1)
+    c, _, _ = build_options(rows, seed=2)
+    assert json.dumps(a) == json.dumps(b) and json.dumps(a) != json.dumps(c)
+
+
+def test_structural_leaks_and_evaluation_subset():
+    labels = ["Front", "Front-Left", "Front-Right", "Left", "Right"]
+    q = "What is the orientation of the camera mounted on the moving car relative to the car's forward direction?"
+    rows = []
+    cams = {1: "Front", 2: "Front-Left", 3: "Front-Right", 4: "Left", 5: "Right"}
+    plan = [1] * 20 + [2] * 5 + [3] * 5 + [4] * 5 + [5] * 5  # Front in 20 of 40 rows
+    for i, cam in enumerate(plan):
+        rows.append(_row(i, "Spatial Relation", "Waymo", q, cams[cam], video=f"seg{i}_camera_{cam}.mp4",
+                         labels=labels))
+    leaks = structural_leaks(rows)
+    prior = leaks[leaks["leak"] == "label_prior"].iloc[0]
+    assert prior["accuracy_on_affected"] == pytest.approx(20 / 40)
+    meta = leaks[leaks["leak"] == "metadata"].iloc[0]
+    assert meta["accuracy_on_affected"] == pytest.approx(1.0)  # the camera names the label
+    sub = evaluation_subset(rows, leaks)
+    assert sub["n_kept"] == 0 and sub["dropped_by_reason"] == {"metadata": 40}
+    # without the camera in the name, the subset balances the labels to the rarest one
+    rows2 = [{**r, "Video": f"seg{i}.mp4"} for i, r in enumerate(rows)]
+    sub2 = evaluation_subset(rows2)
+    kept = [r["Answer Detail"] for r in rows2 if r["ReSTI ID"] in set(sub2["ids"])]
+    assert sorted(kept) == sorted(labels * 5)
