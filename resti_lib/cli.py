@@ -64,10 +64,15 @@ def attack_rows(rel) -> tuple[list[dict], dict]:
 
 
 def _cmd_attack(a) -> int:
-    from .answer_interface import select_attacks
+    from .answer_interface import format_headline
     from .io.benchmark import load_release
-    from .options.attacks import attack_table
+    from .options.attacks import attack_table, headline, select
 
+    try:
+        names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
+    except ValueError as e:
+        print(f"resti attack: {e}", file=sys.stderr)
+        return EXIT_INPUT
     rel = load_release(a.path, strict=False)
     records, skipped = attack_rows(rel)
     if rel.meta_error is not None:
@@ -81,18 +86,31 @@ def _cmd_attack(a) -> int:
     if not records:
         print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
         return EXIT_INPUT
-    table = attack_table(records, alpha=a.alpha, attacks=select_attacks(a.attacks))
+    table = attack_table(records, families="all", attacks=names, alpha=a.alpha, progress=True)
+    head = headline(table)
+    shown = head if a.headline else table
     if a.format == "json":
-        print(json.dumps(table.to_dict("records"), indent=1, default=float))
+        print(json.dumps(shown.to_dict("records"), indent=1, default=float))
     elif a.format == "csv":
-        sys.stdout.write(table.to_csv(index=False, lineterminator="\n"))
+        sys.stdout.write(shown.to_csv(index=False, lineterminator="\n"))
     else:
-        shown = table.copy()
-        for c in ("coverage", "accuracy", "chance"):
-            shown[c] = shown[c].map(lambda x: f"{x:.3f}")
-        shown["p_value"] = shown["p_value"].map(lambda x: f"{x:.3g}")
-        print(shown.to_markdown(index=False))
-    return EXIT_INPUT if skipped or rel.meta_error is not None else 0
+        print(format_headline(head, alpha=a.alpha, tests=len(table)))
+        if not a.headline:
+            t = table.copy()
+            for c in ("coverage", "accuracy", "chance", "min_detectable"):
+                t[c] = t[c].map(lambda x: f"{x:.3f}")
+            t["hits"] = t["hits"].map(lambda x: f"{x:g}")
+            for c in ("p_value", "p_holm"):
+                t[c] = t[c].map(lambda x: f"{x:.3g}")
+            print()
+            print(t.to_markdown(index=False))
+    if skipped or rel.meta_error is not None:
+        return EXIT_INPUT
+    if a.fail_on_significant and bool(table["significant"].any()):
+        print(f"resti attack: {int(table['significant'].sum())} Holm-significant attack rows "
+              "(--fail-on-significant)", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
 
 
 def _cmd_reoption(a) -> int:
@@ -172,13 +190,25 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
                    help="legacy qa.parquet: also check that every legacy row is accounted for")
     v.set_defaults(fn=_cmd_verify)
 
-    at = sub.add_parser("attack", help="option-only attacks on a release",
-                        description="Option-only (blind) attacks on a release: accuracy against chance 1/5, "
-                                    "Holm over the table.", epilog=_attack_help() if full_help else None)
+    at = sub.add_parser("attack", help="blind attacks on a release (options, format, question, other rows, "
+                        "metadata, learned)",
+                        description="Blind attacks on a release: everything but the video (the options, the question, "
+                                    "other rows of the video, metadata), accuracy against chance 1/5, Holm over the "
+                                    "table.", epilog=_attack_help() if full_help else None)
     at.add_argument("path", type=cli_path)
-    at.add_argument("--format", choices=["md", "csv", "json"], default="md")
-    at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate")
-    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all; listed below)")
+    at.add_argument("--format", choices=["md", "csv", "json"], default="md",
+                    help="format on stdout (md: the headline, then the table)")
+    at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate over every table row")
+    at.add_argument("--families", nargs="*", default=None,
+                    help="attack families (default: all): option format typicality question cross_row "
+                    "metadata learned_option learned_question")
+    at.add_argument("--fast", action="store_true", help="leave the learned families out")
+    at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all of the families; "
+                    "listed below)")
+    at.add_argument("--headline", action="store_true",
+                    help="print only the headline: one row per task/source cell, significant cells first")
+    at.add_argument("--fail-on-significant", action="store_true",
+                    help="exit with status 1 when any attack is Holm-significant (for CI)")
     at.set_defaults(fn=_cmd_attack)
 
     ro = sub.add_parser("reoption", help="rebuild the answer options of a release (same rows and details, "

@@ -14,6 +14,15 @@ import pandas as pd
 from . import SOURCES, TASKS
 from .defects import DEFECTS, REPORT_CATEGORIES
 
+# the power of the attack tests lives beside the attack table (the options layer cannot import this one)
+from .options.power import (  # noqa: F401
+    POWER,
+    UNDERPOWERED_AT,
+    attack_power,
+    critical_hits,
+    min_detectable_accuracy,
+)
+
 VERDICT_ORDER = ("retained", "corrected", "re-contracted", "excluded")
 QUESTION_DEFECTS = ("pose_time_omitted", "ambiguous_subject", "unnamed_frame", "unit_tag_missing",
                     "statistic_unnamed", "zero_length_interval", "premise_equals_answer", "grouped_referent",
@@ -132,7 +141,7 @@ def strongest_attacks(table: pd.DataFrame, label: str) -> pd.DataFrame:
             continue
         b = best.iloc[0]
         out.append({"task": task, f"{label} strongest": b["attack"],
-                    f"{label} accuracy": f"{b['hits']}/{b['picked']} = {b['accuracy']:.1%}",
+                    f"{label} accuracy": f"{b['hits']:g}/{b['picked']} = {b['accuracy']:.1%}",
                     f"{label} significant rows": int(table[(table["task"] == task)]["significant"].sum())})
     return pd.DataFrame(out)
 

@@ -490,9 +490,19 @@ def format_trajectory(segments, *, move_decimals: int = 1) -> str:
     return ", then ".join(parts)
 
 
+_TOKEN_RE = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def number_tokens(text: str) -> list[str]:
+    """The numbers of a printed value exactly as printed, in order (``'{"tx": -0.0, "ty": 1.5}'`` ->
+    ``["-0.0", "1.5"]``; ``"12.30m"`` -> ``["12.30"]``): what formatting checks and formatting attacks
+    read (decimals, last digits, negative zeros), never the values themselves (use :func:`parse`)."""
+    return _TOKEN_RE.findall(str(text))
+
+
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
     "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
     "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "adaptive_decimals", "NO_MOVEMENT",
-    "RELATION_LABELS", "canonical_unit", "si_factor", "unit_dimension",
+    "RELATION_LABELS", "canonical_unit", "si_factor", "unit_dimension", "number_tokens",
 ]

@@ -1,17 +1,31 @@
-"""Option-only attacks on hand-built rows with hand-computed picks; statistics by hand."""
+"""Option-only attacks on hand-built rows with hand-computed picks; statistics by hand or by a second method."""
 
+import itertools
 import json
 from math import comb
 
+import numpy as np
 import pandas as pd
 import pytest
 
-from resti_lib.options.attacks import attack_table, binom_p, holm, parse_rows, run_picks
+from resti_lib.options.attacks import (
+    attack_table,
+    binom_p,
+    headline,
+    holm,
+    holm_adjusted,
+    parse_rows,
+    run_picks,
+    select,
+    tie_aware_p,
+)
+from resti_lib.statistics import critical_hits, min_detectable_accuracy
 from tests.helpers import row
 
 
-def picks_of(rows, names):
-    df = run_picks(parse_rows(rows), names)
+def picks_of(rows, names, direction=""):
+    df = run_picks(parse_rows(rows), names, records=rows)
+    df = df[df["direction"].isin(["", direction])]
     return {(r.attack, r.rid): (None if pd.isna(r.pick) else r.pick) for r in df.itertuples()}
 
 
@@ -36,14 +50,18 @@ def test_circular_mean_wraps():
             answer="E")
     p = picks_of([r], ["nearest_circular_mean", "nearest_mean"])
     assert p[("nearest_circular_mean", 0)] == "E"  # the circular mean is 180°
-    assert p[("nearest_mean", 0)] != "E"  # the linear mean (-36°) is fooled by the wrap
+    assert "E" not in p[("nearest_mean", 0)]  # the linear mean (-36°) is fooled by the wrap
 
 
-def test_ties_abstain():
+def test_ties_are_scored_by_expected_accuracy():
     r = row(cands={"A": "1.00m", "B": "22.00m", "C": "3.00m", "D": "44.00m", "E": "5.00m"}, answer="A")
-    p = picks_of([r], ["shortest_string", "longest_string"])
-    assert p[("shortest_string", 0)] is None  # A, C, E all 5 characters
-    assert p[("longest_string", 0)] is None   # B, D tie at 6
+    df = run_picks(parse_rows([r]), ["shortest_string", "longest_string"], records=[r]).set_index("attack")
+    assert df.loc["shortest_string", "pick"] == "ACE" and df.loc["shortest_string", "tied"] == 3
+    assert df.loc["shortest_string", "hit"] == pytest.approx(1 / 3)  # the answer is one of three tied
+    assert df.loc["longest_string", "pick"] == "BD" and df.loc["longest_string", "hit"] == 0.0
+    # a rank tie: 1.00m twice at the bottom -> both are "min"
+    r2 = row(cands={"A": "1.00m", "B": "100cm", "C": "3.00m", "D": "4.00m", "E": "5.00m"}, answer="B")
+    assert picks_of([r2], ["min"])[("min", 0)] == "AB"
 
 
 def test_constant_letter_and_binomial():
@@ -55,13 +73,33 @@ def test_constant_letter_and_binomial():
     assert allrow["p_value"] == pytest.approx(min(1.0, 5 * 0.104))
 
 
-def test_label_prior_is_leave_one_out():
+def test_label_prior_is_the_best_constant_label():
     cands = {"A": "Front", "B": "Left", "C": "Right", "D": "Front-Left", "E": "Front-Right"}
     rows = [row(task="Spatial Relation", source="Waymo", rid=i, cands=cands, answer=a)
             for i, a in enumerate(["A", "A", "B"])]
-    p = picks_of(rows, ["label_prior"])
-    assert p[("label_prior", 0)] is None   # others: Front 1, Left 1 -> tie
-    assert p[("label_prior", 2)] == "A"    # others: Front 2 -> picks Front, wrong
+    assert picks_of(rows, ["label_prior"], direction="Front")[("label_prior", 2)] == "A"
+    t = attack_table(rows, attacks=["label_prior"]).set_index("source")
+    # Front is the answer twice of three: P[X >= 2 | n=3, 1/5] = 0.104, times 5 labels tried (Bonferroni)
+    assert t.loc["Waymo", "direction"] == "Front" and t.loc["Waymo", "hits"] == 2
+    assert t.loc["Waymo", "p_value"] == pytest.approx(5 * 0.104)
+
+
+def test_label_prior_test_is_exact_on_uniform_labels():
+    """A majority vote that leaves one row out shares its rows' luck (its p-values are far too small on
+    uniform labels); the best constant label with a Bonferroni factor is exact: checked by simulation."""
+    rng = np.random.default_rng(11)
+    labels = ["Front", "Front-Left", "Front-Right", "Left", "Right"]
+    small = 0
+    for rep in range(60):
+        rows = []
+        for i in range(60):
+            order = rng.permutation(5)
+            cands = {k: labels[j] for k, j in zip("ABCDE", order)}
+            rows.append(row(task="Spatial Relation", source="Waymo", rid=i, cands=cands,
+                            answer="ABCDE"[rng.integers(5)]))
+        t = attack_table(rows, attacks=["label_prior"])
+        small += int(t[t["source"] == "Waymo"]["p_value"].iloc[0] < 0.1)
+    assert small <= 6 + 4  # at most 10% of 60 below 0.1, plus sampling slack (binomial sd 2.3)
 
 
 def _box(c, lwh=(1, 1, 1)):
@@ -75,8 +113,41 @@ def test_field_majority_reveals_one_field_perturbations():
     r = row(task="3D Video Grounding", cands=cands, answer="A")
     p = picks_of([r], ["field_majority", "centroid_center"])
     assert p[("field_majority", 0)] == "A"
-    # centroid of centres = (0.6, 0.6, 0.6): distances A 1.039, B/C/D 0.825 (tie) -> abstain
-    assert p[("centroid_center", 0)] is None
+    # centroid of centres = (0.6, 0.6, 0.6): distances A 1.039, B/C/D 0.825 (a tie of three)
+    assert p[("centroid_center", 0)] == "BCD"
+
+
+def test_letter_order_finds_distractors_listed_outwards():
+    # distractors 1.2, 1.4, 1.6, 1.8 listed in letter order, the answer 1.0 inserted at C: seen from C the
+    # other four get steadily farther (+6 concordant pairs); from any other candidate they do not
+    rows = []
+    for i, pos in enumerate([2, 0, 4, 1, 3, 2]):
+        vals = [1.2, 1.4, 1.6, 1.8]
+        vals.insert(pos, 1.0)
+        rows.append(row(rid=i, cands={k: f"{v:.2f}m" for k, v in zip("ABCDE", vals)}, answer="ABCDE"[pos]))
+    p = picks_of(rows, ["letter_order"], direction="max")
+    assert all(p[("letter_order", i)] == r["Answer"] for i, r in enumerate(rows))
+    t = attack_table(rows, attacks=["letter_order"]).set_index("source")
+    # the table keeps the best of the 5 directions: 6/6 hits, p = 5 * 0.2**6 (Bonferroni over directions)
+    assert t.loc["ScanNet", "direction"] == "max" and t.loc["ScanNet", "hits"] == 6
+    assert t.loc["ScanNet", "p_value"] == pytest.approx(5 * 0.2 ** 6)
+
+
+def test_label_order_finds_the_inserted_label():
+    canon = ["Left", "Right", "Closer", "Farther", "Directly above"]
+    rows = []
+    rng = np.random.default_rng(3)
+    for i in range(12):
+        ans = canon[rng.integers(5)]
+        rest = [x for x in canon if x != ans]
+        pos = int(rng.integers(5))
+        seq = rest[:pos] + [ans] + rest[pos:]
+        rows.append(row(task="Spatial Relation", source="Omni6DPose", rid=i, cands=dict(zip("ABCDE", seq)),
+                        answer="ABCDE"[pos]))
+    df = run_picks(parse_rows(rows), ["label_order"], records=rows)
+    # the inserted label is always in the picked set: removing it restores the usual order
+    assert all(r.answer in r.pick for r in df.itertuples())
+    assert df["hit"].mean() > 0.45  # ties: an answer put back at its usual place, or next to it
 
 
 def test_binom_p_by_hand():
@@ -86,16 +157,103 @@ def test_binom_p_by_hand():
     assert binom_p(0, 10) == pytest.approx(1.0)
 
 
+def _enumerated_p(hits: float, ties: list) -> float:
+    """P[sum of scores >= hits] by enumerating every hit/miss pattern (a second method)."""
+    total = 0.0
+    for pattern in itertools.product([0, 1], repeat=len(ties)):
+        prob, score = 1.0, 0.0
+        for hit, k in zip(pattern, ties):
+            prob *= (k / 5) if hit else (1 - k / 5)
+            score += hit / k
+        if score >= hits - 1e-9:
+            total += prob
+    return total
+
+
+@pytest.mark.parametrize("ties,hits", [([1, 1, 2, 3, 4, 5, 2, 1], 3.0), ([2, 2, 2, 3, 3, 4, 1, 1, 5, 5], 2.5),
+                                       ([1] * 9, 4.0), ([3, 3, 3, 4, 4, 2, 1], 7 / 3), ([5, 5, 5], 0.6)])
+def test_tie_aware_p_matches_enumeration(ties, hits):
+    assert tie_aware_p(hits, ties) == pytest.approx(_enumerated_p(hits, ties), rel=1e-9, abs=1e-12)
+
+
 def test_holm_by_hand():
     assert holm([0.01, 0.04, 0.03], 0.05) == [True, False, False]
     assert holm([0.01, 0.02, 0.03], 0.05) == [True, True, True]  # 0.01<=.0167, .02<=.025, .03<=.05
+    # adjusted: sorted .01 .03 .04 -> 3*.01=.03, max(.03, 2*.03)=.06, max(.06, .04)=.06
+    assert holm_adjusted([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
 
 
-def test_v5_orientation_matches_report(resti_v5_dir):
-    rows = [json.loads(l) for l in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
+def test_power_by_hand():
+    # Binomial(25, 0.2): P[X >= 9] = 0.0468 <= 0.05 < P[X >= 8] = 0.109, so the test rejects at 9 hits
+    assert critical_hits(25, 0.05) == 9
+    q = min_detectable_accuracy(25, 0.05)
+
+    def power(acc):  # P[Binomial(25, acc) >= 9], summed by hand
+        return sum(comb(25, i) * acc ** i * (1 - acc) ** (25 - i) for i in range(9, 26))
+    assert power(q) == pytest.approx(0.8, abs=1e-4)
+    assert power(q - 0.01) < 0.8 < power(q + 0.01)
+    assert np.isnan(min_detectable_accuracy(3, 1e-4))  # three rows cannot reach 1e-4
+
+
+def test_table_states_power_per_cell():
+    rows = [row(rid=i, answer="ABCDE"[i % 5], cands={k: f"{(j + 1) * (i + 1) / 10:.2f}m" for j, k in
+                                                     enumerate("ABCDE")}) for i in range(40)]
     t = attack_table(rows)
+    level = 0.05 / len(t)
+    assert np.allclose(t["min_detectable"], min_detectable_accuracy(40, level))
+    assert t["underpowered"].all()  # 40 rows cannot detect a 35% blind accuracy at this level
+    assert (t["p_holm"] >= t["p_value"]).all()
+
+
+def test_select_and_unknown_names():
+    assert "letter_order" in select(None) and "learned_blind" in select(None)
+    assert "learned_blind" not in select(None, fast=True)
+    assert set(select("metadata")) == {"metadata_label", "metadata_value"}
+    with pytest.raises(ValueError, match="unknown attack family"):
+        select("colour")
+    with pytest.raises(ValueError, match="unknown attack"):
+        select(None, ["nope"])
+
+
+@pytest.mark.shared
+def test_v5_orientation_matches_report(resti_v5_dir):
+    rows = [json.loads(line) for line in (resti_v5_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
+    ranks = ["min", "rank_2", "median", "rank_4", "max"]
+    t = attack_table(rows, attacks=ranks)
     o = t[(t["task"] == "Ego-Centric Orientation") & (t["source"] == "ALL")].set_index("attack")
     assert (o.loc["median", "hits"], o.loc["median", "picked"]) == (37, 185)
-    best_rank = o.loc[["min", "rank_2", "median", "rank_4", "max"], "hits"].max()
-    assert best_rank == 38
+    assert o.loc[ranks, "hits"].max() == 38
     assert not o["significant"].any()
+
+
+@pytest.mark.shared
+def test_v5_letter_order_reveals_the_answer(resti_v5_dir):
+    """The report's rank attacks miss it, but v5's scalar distractors are listed in the order they were
+    generated around the answer. Counted here by a second method: the answer is the one candidate from
+    which the other four, in letter order, are strictly farther and farther (or nearer and nearer)."""
+    from resti_lib import values as V
+
+    rows = [json.loads(line) for line in (resti_v5_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
+    rows = [r for r in rows if r["Task"] == "Ego-Centric Orientation"]
+    monotone = 0
+    for r in rows:
+        x = [V.parse(r["Candidates"][k]).value for k in "ABCDE"]
+        a = "ABCDE".index(r["Answer"])
+        d = [abs(x[j] - x[a]) for j in range(5) if j != a]
+        monotone += all(d[i] < d[i + 1] for i in range(3)) or all(d[i] > d[i + 1] for i in range(3))
+    assert monotone > 100  # of 185: chance for one candidate is 2/24
+    t = headline(attack_table(rows, families="option"))
+    cell = t.set_index("source").loc["ALL"]
+    assert cell["significant"] and cell["attack"] == "letter_order" and cell["accuracy"] > 0.55
+
+
+def test_nearest_questions_match_brute_force():
+    from resti_lib.options.readers import nearest_questions
+
+    rng = np.random.default_rng(5)
+    vocab = [f"w{i}" for i in range(12)]
+    sets = [frozenset(rng.choice(vocab, size=rng.integers(1, 6), replace=False)) for _ in range(90)]
+    got = nearest_questions(sets, k=5, block=16)  # several blocks
+    for i, s in enumerate(sets):
+        sims = sorted(((len(s & t) / len(s | t), -j) for j, t in enumerate(sets) if j != i), reverse=True)[:5]
+        assert got[i] == [-x[1] for x in sims]

@@ -31,7 +31,9 @@ def test_notebook_runs_and_writes_tables(tmp_path):
     v = json.loads((out / "validation_release.json").read_text())
     assert v["accepted_rows"] == 12 and v["passed"]
     csv = (out / "attacks_release.csv").read_text().splitlines()
-    assert csv[0].startswith("attack,task,source,")
+    assert csv[0].startswith("attack,family,task,source,n_rows,")
+    head = (out / "attacks_release_headline.csv").read_text().splitlines()
+    assert head[0].startswith("task,source,n_rows,significant,attack,")
     assert list((tmp_path / "f").glob("*.png"))
 
 

@@ -1,32 +1,42 @@
-"""A learned blind attacker: a classifier that scores each candidate from the five candidate strings.
+"""Learned blind attackers: classifiers that score each candidate without the video.
 
-Where the rule attacks of :mod:`resti_lib.options.attacks` test one shortcut each, this attacker
-combines them and learns regularities across rows (value ranges of a task, string forms, field
-structure). It sees, per candidate, only features computed from the row's five candidate strings
-and the row's task, source and letter layout:
+Where the rule attacks of :mod:`resti_lib.options.attacks` test one shortcut each, these attackers
+combine them and learn regularities across rows. Two attacks are registered:
 
-- the parsed value summaries of the candidate (scalar value and its logarithm, angle, trajectory
-  totals, box centre / log-dimensions / heading, pose translation / rotation angle), and for each
-  summary the candidate's rank in the row, the gaps to its neighbours, its distance to the row mean
-  (standardised) and to the row medoid;
-- for boxes and poses: distances to the centroid of each field group and the medoid scores, the
-  per-field median and modal votes (the rule attacks' statistics), the printed rotation entries,
-  and camera geometry (is a box centre in view; does a camera look where the reference camera
-  looks);
-- string length and digit count (absolute and relative to the row), the letter, the task and source
-  (one-hot), the relation label (one-hot) and the trajectory phrase structure.
+``learned_blind`` (family ``learned_option``)
+    sees, per candidate, only features computed from the row's five candidate strings and the row's
+    task, source and letter layout:
 
-A gradient-boosting classifier (scikit-learn, fixed ``random_state``) is trained on candidate
-rows with label "is the keyed candidate" and evaluated out of fold with :class:`GroupKFold` on
-``Video``: no video is in a training and a test fold at once. The pick of a row is the candidate
-with the highest out-of-fold score (abstain on an exact tie). The picks join the rule attacks'
-picks as attack ``learned_blind`` before the binomial tests and Holm's correction
-(:func:`attack_table_with_learned`).
+    - the parsed value summaries of the candidate (scalar value and its logarithm, angle, trajectory
+      totals, box centre / log-dimensions / heading, pose translation / rotation angle), and for each
+      summary the candidate's rank in the row, the gaps to its neighbours, its distance to the row
+      mean (standardised) and to the row medoid;
+    - for boxes and poses: distances to the centroid of each field group and the medoid scores, the
+      per-field median and modal votes (the rule attacks' statistics), the printed rotation entries,
+      and camera geometry (is a box centre in view; does a camera look where the reference camera
+      looks);
+    - string length and digit count (absolute and relative to the row), the letter, the task and
+      source (one-hot), the relation label (one-hot), the trajectory phrase structure, and the
+      letter-order concordance of :func:`attacks.letter_order <resti_lib.options.attacks>`.
+
+``learned_question`` (family ``learned_question``)
+    sees the same candidate features plus the question's: the measured quantity, instant or interval,
+    camera or another subject, the window, whether it prints a premise pose, hashed words of the
+    question text and the hashed subject noun (:mod:`resti_lib.options.observables`), and per
+    candidate the rate it implies over the window and its distance to the premise pose.
+
+A gradient-boosting classifier (scikit-learn, fixed ``random_state``, one thread) is trained on
+candidate rows with label "is the keyed candidate" and evaluated out of fold with
+:class:`~sklearn.model_selection.GroupKFold` on the rows' **source sequence** (read from the video
+name, or given as ``groups``): no sequence is in a training and a test fold at once, so the camera
+videos of one Waymo segment, which share answers, cannot leak into each other. The pick of a row is
+the set of candidates with the highest out-of-fold score (a tie is scored by its expected accuracy).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from dataclasses import dataclass
 
@@ -35,10 +45,21 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from .. import values as V
-from .attacks import ATTACKS, _project_so3, _rot_angle, parse_rows, run_picks, summarize_picks
+from .attacks import (
+    ATTACKS,
+    Batch,
+    _project_so3,
+    _rot_angle,
+    attack,
+    make_batch,
+    picks_frame,
+    select,
+    top,
+)
 from .checks import ParsedRow
 
 NAME = "learned_blind"
+QUESTION_NAME = "learned_question"
 SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
 LABELS = tuple(V.RELATION_LABELS)
 
@@ -50,8 +71,8 @@ class LearnedConfig:
     model: str = "gradient_boosting"  # or "random_forest"
     n_splits: int = 5
     random_state: int = 0
-    max_iter: int = 200
-    learning_rate: float = 0.05
+    max_iter: int = 60
+    learning_rate: float = 0.15
     max_leaf_nodes: int = 15
     min_samples_leaf: int = 20
     n_estimators: int = 300
@@ -242,10 +263,14 @@ def row_features(p: ParsedRow) -> np.ndarray:
         if isinstance(v, V.Trajectory):
             st = v.structure
             traj[i] = [len(st), sum(1 for s in st if s == "turn+"), sum(1 for s in st if s == "turn-")]
+    from .attacks import _order_concordance
+
+    order = _order_concordance(p)
+    order = np.array([[order[k]] for k in LETTERS]) if order is not None else np.full((n, 1), np.nan)
     geo, rot = _geometry(p)
     geo_stats = np.concatenate([_column_stats(geo[:, j]) for j in range(geo.shape[1])], axis=1)
     return np.concatenate([task, src, letter, strf, summ, stats, _group_stats(p), angle, lab, traj, geo, geo_stats,
-                           rot], axis=1)
+                           rot, order], axis=1)
 
 
 def feature_matrix(rows: list[ParsedRow]) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -282,25 +307,35 @@ def _model(cfg: LearnedConfig):
 
 def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None
                        ) -> tuple[np.ndarray, list[int]]:
-    """Out-of-fold candidate scores, shape (n_used, 5), and the indices of the used rows.
+    """Out-of-fold candidate scores of the option-only attacker, shape (n_used, 5), and the indices of the
+    used rows.
 
-    Folds: :class:`sklearn.model_selection.GroupKFold` on the rows' videos (never split a video).
+    Folds: :class:`sklearn.model_selection.GroupKFold` on ``videos`` (one group label per row; pass the
+    source sequence to keep a sequence's videos together).
     """
+    X, y, used = feature_matrix(rows)
+    if not used:
+        return np.zeros((0, 5)), []
+    return grouped_scores(X, y, [videos[i] for i in used], cfg), used
+
+
+def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfig | None = None) -> np.ndarray:
+    """Out-of-fold scores (n_rows, 5) of a classifier on candidate features ``X`` (5 consecutive candidate
+    rows per question, in letter order) with labels ``y``; folds by ``groups`` (one label per question),
+    so no group is in a training and a test fold at once."""
     from sklearn.model_selection import GroupKFold
     from threadpoolctl import threadpool_limits
 
     cfg = cfg or LearnedConfig()
-    X, y, used = feature_matrix(rows)
-    if not used:
-        return np.zeros((0, 5)), []
     X = X[:, ~np.all(np.isnan(X), axis=0)]  # features of kinds absent from these rows
-    groups_row = np.array([str(videos[i]) for i in used])
+    groups_row = np.array([str(g) for g in groups])
     n_groups = len(set(groups_row))
     if n_groups < 2:
-        raise ValueError("the learned attacker needs at least two videos for grouped cross-validation")
+        raise ValueError("the learned attacker needs at least two groups (videos or sequences) for grouped "
+                         "cross-validation")
     n_splits = min(cfg.n_splits, n_groups)
-    row_idx = np.arange(len(used))
-    scores = np.full((len(used), 5), np.nan)
+    row_idx = np.arange(len(groups_row))
+    scores = np.full((len(groups_row), 5), np.nan)
     for train, test in GroupKFold(n_splits=n_splits).split(row_idx, groups=groups_row):
         tr = (train[:, None] * 5 + np.arange(5)).ravel()
         te = (test[:, None] * 5 + np.arange(5)).ravel()
@@ -312,41 +347,155 @@ def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig |
             model.fit(X[tr], y[tr])
             proba = model.predict_proba(X[te])[:, list(model.classes_).index(True)]
         scores[test] = proba.reshape(-1, 5)
-    return scores, used
+    return scores
+
+
+# ------------------------------------------------------------------------------------ question features
+
+QUANTITIES = ("box", "heading_change", "pose", "displacement", "path_length", "speed", "acceleration", "trajectory",
+              "length", "width", "height", "distance_to_camera", "surface_distance", "distance", "relation")
+WORD_BUCKETS = 32
+NOUN_BUCKETS = 16
+
+
+def _bucket(text: str, n: int) -> int:
+    import zlib
+
+    return zlib.crc32(text.encode("utf-8")) % n
+
+
+def question_row_features(record: dict, obs) -> np.ndarray:
+    """Features of one question (the same for its five candidates): the measured quantity, an instant
+    or an interval, a camera or another subject, the window, whether a premise pose is printed, hashed
+    words of the question text and the hashed subject noun."""
+    from .readers import is_camera, noun_of
+
+    q = np.zeros(len(QUANTITIES) + 1)
+    q[QUANTITIES.index(obs.quantity) if obs.quantity in QUANTITIES else len(QUANTITIES)] = 1
+    w = obs.window_s
+    instant = obs.time_start is not None and obs.time_start == obs.time_end
+    window = [np.log(w + 0.1) if w is not None else np.nan, w if w is not None else np.nan, float(instant),
+              float(is_camera(obs)), float(obs.premise is not None)]
+    words = np.zeros(WORD_BUCKETS)
+    toks = re.findall(r"[a-z]+", str(record.get("Question") or "").lower())
+    for t in toks:
+        words[_bucket(t, WORD_BUCKETS)] += 1
+    words /= max(1, len(toks))
+    noun = np.zeros(NOUN_BUCKETS + 1)
+    n = noun_of(obs)
+    noun[_bucket(n, NOUN_BUCKETS) if n else NOUN_BUCKETS] = 1
+    return np.concatenate([q, window, words, noun])
+
+
+def question_candidate_features(p: ParsedRow, obs) -> np.ndarray:
+    """(5, F) candidate features that need the question: the implied rate over the window (log), the
+    translation and rotation distance to the premise pose (and whether the candidate repeats it), each
+    with its within-row statistics."""
+    from .readers import implied_rate, premise_parts, repeats_premise
+
+    rate = np.full(5, np.nan)
+    prem = np.full((5, 3), np.nan)
+    parts = premise_parts(obs)
+    for i, k in enumerate(LETTERS):
+        v = p.values[k]
+        r = implied_rate(v, obs)
+        if r is not None:
+            rate[i] = math.log(r[1] + 1e-4)
+        if parts is not None and isinstance(v, V.Pose):
+            t0, R0 = parts
+            dt = float(np.linalg.norm(np.array(v.t, float) - t0))
+            prem[i] = [math.log(dt + 1e-3), math.degrees(_rot_angle(R0, np.array(v.R, float))),
+                       float(repeats_premise(v, obs))]
+    cols = [rate[:, None], _column_stats(rate), prem, _column_stats(prem[:, 0]), _column_stats(prem[:, 1])]
+    return np.concatenate(cols, axis=1)
+
+
+def _option_matrix(batch: Batch) -> tuple[np.ndarray, np.ndarray]:
+    """Option-only candidate features and labels of every row of the batch (computed once per batch)."""
+    key = "learned_option_features"
+    if key not in batch._index:
+        X, y, _ = feature_matrix(batch.rows)
+        batch._index[key] = (X, y)
+    return batch._index[key]
+
+
+def question_matrix(batch: Batch) -> np.ndarray:
+    """Question and question-aware candidate features of every row (5 candidate rows per question)."""
+    out = []
+    for p, r, o in zip(batch.rows, batch.records, batch.obs):
+        q = np.repeat(question_row_features(r, o)[None, :], 5, axis=0)
+        out.append(np.concatenate([q, question_candidate_features(p, o)], axis=1))
+    return np.concatenate(out).astype(float) if out else np.zeros((0, 0))
+
+
+def _picks_of_scores(scores: np.ndarray) -> list:
+    """The top-scoring letters of each row (a tie is a set)."""
+    return [top({k: float(x) for k, x in zip(LETTERS, s)}) for s in scores]
 
 
 def learned_picks(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None) -> pd.DataFrame:
     """Per-row picks of the learned attacker, in the columns of :func:`attacks.run_picks`."""
-    scores, used = out_of_fold_scores(rows, videos, cfg)
-    recs = []
-    for s, i in zip(scores, used):
-        p = rows[i]
-        top = np.max(s)
-        win = np.flatnonzero(np.abs(s - top) <= 1e-12)
-        pick = LETTERS[int(win[0])] if len(win) == 1 else None
-        recs.append((NAME, p.rid, p.task, p.source, pick, p.answer, pick == p.answer))
-    return pd.DataFrame.from_records(recs, columns=["attack", "rid", "task", "source", "pick", "answer", "hit"])
+    batch, used = make_batch(rows)
+    scores, _ = out_of_fold_scores(batch.rows, [videos[i] for i in used], cfg)
+    return picks_frame(batch, NAME, _picks_of_scores(scores), family="learned_option")
+
+
+def config_of(spec) -> LearnedConfig:
+    """A :class:`LearnedConfig` from None (defaults), a config, ``True`` or a dict of its fields."""
+    if isinstance(spec, LearnedConfig):
+        return spec
+    if spec is None or spec is True:
+        return LearnedConfig()
+    return config_from(spec)
+
+
+def cv_groups(batch: Batch) -> list:
+    """Cross-validation group of every row: ``settings["groups"][Legacy Row Key]`` where given, else the
+    source sequence read from the video name (the camera videos of one Waymo segment, which share ego
+    answers, never straddle train and test)."""
+    given = batch.settings.get("groups") or {}
+    return [given.get(r.get("Legacy Row Key"), o.sequence) for r, o in zip(batch.records, batch.obs)]
+
+
+@attack(NAME, ["any"], "gradient-boosting classifier on candidate features, out of fold by source sequence",
+        family="learned_option", scope="batch")
+def _learned_blind(batch: Batch):
+    groups = cv_groups(batch)
+    if len(set(groups)) < 2:
+        return [None] * len(batch)
+    X, y = _option_matrix(batch)
+    return _picks_of_scores(grouped_scores(X, y, groups, config_of(batch.settings.get("learned"))))
+
+
+@attack(QUESTION_NAME, ["any"], "gradient-boosting classifier on candidate features and the question's features "
+        "(type, subject, window, premise, hashed words and noun; implied rate, distance to the premise), out of "
+        "fold by source sequence", family="learned_question", scope="batch")
+def _learned_question(batch: Batch):
+    groups = cv_groups(batch)
+    if len(set(groups)) < 2:
+        return [None] * len(batch)
+    X, y = _option_matrix(batch)
+    Xq = np.concatenate([X, question_matrix(batch)], axis=1)
+    return _picks_of_scores(grouped_scores(Xq, y, groups, config_of(batch.settings.get("learned"))))
 
 
 def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
-                              learned: LearnedConfig | None | bool = None, groups: dict | None = None
-                              ) -> pd.DataFrame:
-    """The rule attacks' table with ``learned_blind`` appended before the binomial tests and Holm.
+                              learned: LearnedConfig | None | bool = None, groups: dict | None = None,
+                              families=None) -> pd.DataFrame:
+    """The attack table with the learned attackers (:func:`attacks.attack_table` with ``fast=False``).
 
-    ``learned=False`` leaves the learned attacker out (the plain :func:`attacks.attack_table`).
-    ``groups`` maps a row's Legacy Row Key to its cross-validation group (e.g. its source sequence,
-    so the camera videos of one Waymo segment, which share ego answers, never straddle train and
-    test); rows not in it are grouped by ``Video``.
+    ``families`` None keeps this function's historical scope: the option-only rules and the learned
+    option-only attacker (``learned_blind``); pass ``"all"`` for every family.
+    ``learned=False`` leaves the learned attackers out. ``groups`` maps a row's Legacy Row Key to its
+    cross-validation group (default: the source sequence of its video).
     """
-    rows = parse_rows(records)
-    picks = run_picks(rows, attacks)
-    if learned is not False:
-        cfg = learned if isinstance(learned, LearnedConfig) else LearnedConfig()
-        groups = groups or {}
-        videos = [groups.get(r.get("Legacy Row Key"), r.get("Video")) for r in records]
-        picks = pd.concat([picks, learned_picks(rows, videos, cfg)], ignore_index=True)
-    tests = {n: 5 if n == "constant_letter" else 1 for n in list(ATTACKS) + [NAME]}
-    return summarize_picks(picks, alpha=alpha, tests=tests)
+    from .attacks import attack_table
+
+    fams = ("option", "learned_option") if families is None else families
+    if attacks not in (None, "all"):
+        names = [attacks] if isinstance(attacks, str) else list(attacks)
+        attacks = names + [n for n in select(fams) if ATTACKS[n].learned and n not in names]
+    return attack_table(records, families=fams, alpha=alpha, attacks=attacks, learned=learned, groups=groups)
 
 
 def config_from(params: dict | None) -> LearnedConfig:
