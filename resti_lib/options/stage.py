@@ -169,6 +169,65 @@ def box_yaw(R, up_axis: int) -> float:
     return float(np.degrees(np.arctan2(a @ g, a @ f)))
 
 
+_DOWN = np.array([0.0, 1.0, 0.0])  # +Y down in the reference camera's OpenCV axes
+
+
+def gaze_depth(R, t) -> float:
+    """Depth along the reference optical axis (+Z) of its closest approach to this camera's optical
+    axis; NaN when the two are parallel or the point is not in front."""
+    a = np.array([0.0, 0.0, 1.0])
+    b = np.asarray(R, float)[:, 2]
+    t = np.asarray(t, float)
+    c = a @ b
+    den = 1.0 - c * c
+    if den < 1e-4:
+        return float("nan")
+    s = (t @ a - c * (t @ b)) / den
+    return float(s) if 0.05 < s < 50.0 else float("nan")
+
+
+def _gaze_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e1 = np.cross(_DOWN, u)
+    if np.linalg.norm(e1) < 1e-9:
+        e1 = np.cross(np.array([1.0, 0.0, 0.0]), u)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def gaze_fields(R, t, G) -> np.ndarray:
+    """A camera relative to a gaze point ``G`` (reference frame): its centre (3), the two angles of its
+    optical axis away from the line towards ``G`` and its roll about the optical axis (degrees).
+    Cameras around a desk look at it: every candidate drawn this way does too."""
+    R, C = np.asarray(R, float), np.asarray(t, float)
+    a = R[:, 2]
+    u = np.asarray(G, float) - C
+    u /= np.linalg.norm(u)
+    e1, e2 = _gaze_basis(u)
+    au = max(float(a @ u), 1e-6)
+    alpha, beta = np.degrees(np.arctan2(a @ e1, au)), np.degrees(np.arctan2(a @ e2, au))
+    xr = np.cross(_DOWN, a)
+    xr /= np.linalg.norm(xr)
+    yr = np.cross(a, xr)
+    roll = np.degrees(np.arctan2(R[:, 0] @ yr, R[:, 0] @ xr))
+    return np.array([*C, alpha, beta, roll])
+
+
+def from_gaze_fields(f, G) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`gaze_fields`: (R, t)."""
+    f = np.asarray(f, float)
+    C = f[:3]
+    u = np.asarray(G, float) - C
+    u /= np.linalg.norm(u)
+    e1, e2 = _gaze_basis(u)
+    a = u + np.tan(np.radians(f[3])) * e1 + np.tan(np.radians(f[4])) * e2
+    a /= np.linalg.norm(a)
+    xr = np.cross(_DOWN, a)
+    xr /= np.linalg.norm(xr)
+    yr = np.cross(a, xr)
+    x = np.cos(np.radians(f[5])) * xr + np.sin(np.radians(f[5])) * yr
+    return np.column_stack([x, np.cross(a, x), a]), C
+
+
 def centre_fields(c, mode: str) -> np.ndarray:
     """A box centre as drawn: projective (x/z, y/z, log z), height (x/z, y, log z) or cartesian."""
     c = np.asarray(c, float)
@@ -375,10 +434,62 @@ class GroupModel:
     info: dict = field(default_factory=dict)  # per-row derived values (offsets, preimages, ...)
 
 
+def share_key(spec: OptionSpec) -> tuple:
+    """What two rows must have in common to share a candidate set: task, source, the measured
+    quantity of the same subject (camera, or the same noun phrase) over the same window (to the
+    millisecond), and the same answer string."""
+    o = spec.obs
+    window = None if o.window_s is None else round(float(o.window_s), 3)
+    subject = " ".join(str(o.subject or "").lower().split())
+    return (spec.task, spec.source, o.quantity, subject, window, o.premise_text, spec.detail)
+
+
+def dense_window(values, gap: float, *, min_rows: int = 5) -> tuple[float, float, int] | None:
+    """The window narrower than the separation floor ``gap`` (it holds at most one candidate) that
+    holds the most answers, when it holds more than a fifth of them: ``(lo, hi, count)``.
+
+    Five exchangeable candidates would put more than one candidate there on average, which
+    separated candidates cannot: the stage then treats the window like a fixed slot (see
+    :meth:`Stage._window_slot`)."""
+    x = np.sort(np.asarray(values, float))
+    n = len(x)
+    best = None
+    j = 0
+    for i in range(n):
+        j = max(j, i)
+        while j + 1 < n and x[j + 1] - x[i] < gap:
+            j += 1
+        if best is None or j - i + 1 > best[2]:
+            best = (float(x[i]), float(x[j]), j - i + 1)
+    if best is None or best[2] < min_rows or best[2] / n <= 0.2:
+        return None
+    return best
+
+
+def slot_subgroup(spec: OptionSpec) -> tuple:
+    """Rows among which a fixed slot's carriers are chosen: the same quantity, of the camera or of
+    an object, over a window or at an instant — so the slot string is not the answer more often in
+    one kind of question than another."""
+    o = spec.obs
+    return (o.quantity, o.subject_class == "camera", o.window_s is None)
+
+
+def recorded_decimals(values, max_decimals: int) -> int:
+    """The decimals a field of a group's answers is recorded with: the fewest that represent at
+    least half of the values exactly (Waymo box heights are recorded to the centimetre where
+    lengths have millimetres). Distractors printed finer than the answers would mark the answer."""
+    v = np.asarray(values, dtype=float)
+    for d in range(max_decimals + 1):
+        if np.mean(np.abs(np.round(v, d) - v) > 1e-9) < 0.5:
+            return d
+    return max_decimals
+
+
 def _group_key(spec: OptionSpec) -> str:
     o = spec.obs
-    if spec.kind == "scalar":
-        return f"{spec.task}|{spec.source}|{spec.unit}"
+    if spec.kind == "scalar":  # questions at an instant and over an interval are told apart
+        form = "instant" if spec.obs.time_start is not None and spec.obs.time_start == spec.obs.time_end else "interval"
+        return f"{spec.task}|{spec.source}|{spec.unit}|{form}"
     if spec.kind == "angle":
         return f"{spec.task}|{spec.source}|{o.quantity}"
     if spec.kind == "pose":
@@ -426,7 +537,7 @@ class Stage:
         for g in sorted(by_group):
             ps = by_group[g]
             if ps[0].spec.kind in ("scalar", "angle") and len(ps) < small:
-                pooled = f"{ps[0].spec.task}|*|{ps[0].spec.unit}"
+                pooled = f"{ps[0].spec.task}|*|{ps[0].spec.unit}|{g.rsplit('|', 1)[-1]}"
                 for p in ps:
                     p.group = pooled
                 by_group[pooled].extend(ps)
@@ -443,11 +554,13 @@ class Stage:
                 self.by_id[rid].letter = L
 
     def _share_sets(self) -> None:
-        """Rows of one video asking for the same answer share one candidate set."""
+        """Rows that ask the same thing and have the same answer share one candidate set: the
+        camera videos of one recording (their ego answers are equal), the same object asked in two
+        scenes. Otherwise the answer, repeated with fresh distractors, is the one value two rows'
+        options have in common."""
         first: dict[tuple, str] = {}
         for p in self.plans:
-            s = p.spec
-            key = (s.obs.video, s.task, s.detail)
+            key = share_key(p.spec)
             if key in first and p.spec.kind != "label":
                 p.share_with = first[key]
             else:
@@ -458,7 +571,6 @@ class Stage:
         vals = np.array([p.spec.value.value for p in ps], float)
         eps = min(p.spec.ulp for p in ps)
         moving = [p for p, v in zip(ps, vals) if v > 0]
-        zeros = [p.rid for p, v in zip(ps, vals) if v <= 0]
         info: dict = {"eps": eps, "offset": {}}
         if moving:
             x = np.array([p.spec.value.value for p in moving], float)
@@ -483,8 +595,14 @@ class Stage:
             fm = FieldModel.fit([], None, None, None, knn=self.model["knn"], shrink=self.model["copula_shrink"],
                                 min_rows=int(self.model["min_group"]), prior_sd=1.0,
                                 prior_center=[math.log(20 * eps + eps)])
-        carriers = _slot_rows(zeros, [p.rid for p in moving], self.model["zero_slot_ratio"], seed=self.seed,
-                              group=g)
+        gm_reuse = GroupModel("scalar", None, {})
+        self._fit_reuse(gm_reuse, ps)
+        info.update(gm_reuse.info)
+        carriers: set = set()
+        for sub in sorted({slot_subgroup(p.spec) for p in ps}, key=str):
+            zs = [p.rid for p in ps if p.spec.value.value <= 0 and slot_subgroup(p.spec) == sub]
+            ms = [p.rid for p in moving if slot_subgroup(p.spec) == sub]
+            carriers |= _slot_rows(zs, ms, self.model["zero_slot_ratio"], seed=self.seed, group=f"{g}|{sub}")
         for p in ps:
             if p.rid in carriers:  # the zero printed like the row's own answer
                 zero = V.format_scalar(0.0, p.spec.unit, p.spec.decimals)
@@ -501,7 +619,30 @@ class Stage:
         W = W if np.isfinite(W).all() else None
         fm = FieldModel.fit([p.rid for p in ps], b, H, W, knn=self.model["knn"], shrink=self.model["copula_shrink"],
                             min_rows=int(self.model["min_group"]), prior_sd=0.3)
-        return GroupModel("angle", fm)
+        gm = GroupModel("angle", fm)
+        self._window_slot(g, gm, ps, th, angle_gap(ps[0].spec, self.params))
+        return gm
+
+    def _window_slot(self, g: str, gm: GroupModel, ps: list[RowPlan], values: np.ndarray, gap: float) -> None:
+        """A dense window of answers (:func:`dense_window`) is a slot: every row whose answer lies in
+        it and ``zero_slot_ratio`` times as many others carry one candidate from it (in the others,
+        a value drawn among the window's answers); no other candidate falls in it. Where the window
+        holds more than a fifth of the answers, the slot candidate is the answer in more than one
+        carrier in five: a leak no option set can remove, named by :mod:`resti_lib.options.structural`."""
+        win = dense_window(values, gap)
+        if win is None:
+            return
+        lo, hi, _ = win
+        inside = [p.rid for p, x in zip(ps, values) if lo - 1e-9 <= x <= hi + 1e-9]
+        others = [p.rid for p in ps if p.rid not in set(inside)]
+        carriers = _slot_rows(inside, others, self.model["zero_slot_ratio"], seed=self.seed, group=f"{g}|window")
+        gm.info["window"] = (lo, hi)
+        gm.info["window_values"] = {p.rid: float(x) for p, x in zip(ps, values) if p.rid in set(inside)}
+        for p in ps:
+            if p.rid in set(inside):
+                p.evidence["window_slot"] = "answer"
+            elif p.rid in carriers:
+                p.evidence["window_slot"] = "drawn"
 
     def _fit_trajectory(self, g: str, ps: list[RowPlan]) -> GroupModel:
         moving = [p for p in ps if p.spec.value.segments and p.spec.value.total_distance > 0]
@@ -538,6 +679,10 @@ class Stage:
         mode = per_source(kp["centre"], src, "projective")
         up_axis = per_source(kp["up_axis"], src, None)
         info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "up_axis": up_axis}
+        cs = np.array([p.spec.value.center for p in ps], float)
+        ds = np.array([p.spec.value.lwh for p in ps], float)
+        info["decimals"] = {**{f"c{j}": recorded_decimals(cs[:, j], 3) for j in range(3)},
+                            **{f"d{j}": recorded_decimals(ds[:, j], 3) for j in range(3)}}
         rows_f, rows_h = [], []
         lds = []
         for p in ps:
@@ -601,6 +746,10 @@ class Stage:
         up = np.asarray(kp["world_up"], float)
         rate = bool(per_source(kp["rate"], src, False))
         info: dict = {"rate": rate, "R0": {}, "frame": {}, "win": {}}
+        relative = all(p.spec.obs.premise_text is None for p in ps)
+        info["relative"] = relative
+        ts = np.array([p.spec.value.t for p in ps], float)
+        info["t_decimals"] = [recorded_decimals(ts[:, j], ps[0].spec.decimals) for j in range(3)]
         F, Hh, W = [], [], []
         for p in ps:
             v: V.Pose = p.spec.value
@@ -616,17 +765,33 @@ class Stage:
             else:  # relative poses: the reference camera is the identity
                 Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)
             info["frame"][p.rid] = (Rp, tp, Hf)
-            d = Hf.T @ (np.array(v.t, float) - tp) / scale
-            r = Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
             h_t = 0.5 * 10.0 ** -v.decimals
-            F.append([*d, *r])
-            Hh.append([h_t / scale] * 3 + [h_t] * 3)
+            if not relative:
+                d = Hf.T @ (np.array(v.t, float) - tp) / scale
+                r = Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
+                F.append([*d, *r])
+                Hh.append([h_t / scale] * 3 + [h_t] * 3)
             W.append([_log_window(p.spec)])
+        if relative:  # cameras looking at a desk: drawn around the gaze point they share
+            depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
+            G = np.array([0.0, 0.0, float(np.nanmedian(depths)) if np.isfinite(depths).any() else 0.5])
+            info["gaze"] = G
+            yaws = []
+            for p in ps:
+                f = gaze_fields(info["R0"][p.rid], p.spec.value.t, G)
+                F.append(list(f))
+                Hh.append([0.5 * 10.0 ** -p.spec.value.decimals] * 3 + [0.3, 0.3, 0.3])
+                yaws.append(f[5])
+            cut = circular_cut(yaws)
+            info["cut"] = cut
+            for row in F:
+                row[5] = float(on_cut_line(row[5], cut))
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
         fm = FieldModel.fit([p.rid for p in ps], F, Hh, W if np.isfinite(W).all() else None,
                             knn=self.model["knn"], shrink=self.model["copula_shrink"],
                             min_rows=int(self.model["min_group"]),
-                            prior_sd=[0.5, 0.5, 0.2, 0.1, 0.1, 0.3] if not rate else [3.0, 1.0, 0.2, 0.1, 0.1, 0.3])
+                            prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
+                                      [0.5, 0.5, 0.2, 0.1, 0.1, 0.3] if not rate else [3.0, 1.0, 0.2, 0.1, 0.1, 0.3]))
         return GroupModel("pose", fm, info)
 
     # -------------------------------------------------------------------- building
@@ -797,7 +962,7 @@ class Stage:
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
             b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K)[:, :, 0]
         dec = spec.decimals
-        xs = np.exp(b + off) - eps
+        xs = self._reuse(gm, p, np.exp(b + off) - eps, rng)
         pv = np.round(xs, dec)
         extra = [float(V.parse(t).value) for t in fixed] + ([] if p.answer_is_fixed else [v.value])
         allv = np.column_stack([pv, np.tile(extra, (K, 1))]) if extra else pv
@@ -822,6 +987,49 @@ class Stage:
                 self._last.keep(i)
             return alls
         raise _Reject("no drawn set met the separation and plausibility constraints")
+
+    def _fit_reuse(self, gm: GroupModel, ps: list) -> None:
+        """Answers that recur in other recordings (the same object asked in two scenes): the share of
+        rows whose answer is the answer of a row of another source sequence, and those values. A
+        distractor then takes such a value as often (:meth:`_reuse`), or the recurring answer would
+        be the one candidate another row's answer vouches for."""
+        seqs: dict[float, set] = defaultdict(set)
+        for p in ps:
+            if p.spec.value.value > 0:
+                seqs[round(float(p.spec.value.value), 9)].add(p.spec.obs.sequence)
+        moving = [p for p in ps if p.spec.value.value > 0]
+        if not moving:
+            return
+        reused = sum(1 for p in moving if len(seqs[round(float(p.spec.value.value), 9)] - {p.spec.obs.sequence}) > 0)
+        rate = reused / len(moving)
+        if rate < 0.05:
+            return
+        gm.info["reuse_rate"] = rate
+        gm.info["reuse_values"] = np.array(sorted(seqs))
+        gm.info["reuse_seqs"] = seqs
+
+    def _reuse(self, gm: GroupModel, p: RowPlan, xs: np.ndarray, rng) -> np.ndarray:
+        """Distractors take the answers of other recordings as often as the answers do
+        (:meth:`_fit_reuse`): drawn values that already print as such an answer count; of the rest,
+        enough become the nearest such answer to make up the group's reuse rate."""
+        rate = gm.info.get("reuse_rate")
+        if not rate or xs.size == 0:
+            return xs
+        pool = gm.info["reuse_values"]
+        seqs = gm.info["reuse_seqs"]
+        own = p.spec.obs.sequence
+        if len(pool) < 2:
+            return xs
+        j = np.clip(np.searchsorted(pool, xs), 1, len(pool) - 1)
+        near = np.where(np.abs(pool[j - 1] - xs) <= np.abs(pool[j] - xs), pool[j - 1], pool[j])
+        usable = np.vectorize(lambda v: bool(seqs[round(float(v), 9)] - {own}))(near)
+        already = usable & (np.abs(np.round(xs, p.spec.decimals) - near) < 1e-9)
+        natural = float(already.mean())
+        if natural >= rate:
+            return xs
+        extra = (rate - natural) / max(1e-9, 1.0 - natural)
+        snap = ~already & usable & (rng.random(xs.shape) < extra)
+        return np.where(snap, near, xs)
 
     def _mean_offset(self, gm, spec) -> float:
         q = spec.obs.quantity
@@ -853,13 +1061,24 @@ class Stage:
 
         cell = (b(max(x - h, -180.0)), b(min(x + h, 180.0 - 1e-9)))
         K = 32
-        z = self._draw(gm, p.rid, [cell], s, rng, n=4, batch=K)[:, :, 0]
+        slot = p.evidence.get("window_slot")
+        n_model = 3 if slot == "drawn" else 4
+        z = self._draw(gm, p.rid, [cell], s, rng, n=n_model, batch=K)[:, :, 0]
         th = 180.0 * np.tanh(z)
+        if slot == "drawn":  # one candidate from the window, drawn among the other rows' answers there
+            lo, hi = gm.info["window"]
+            pool = np.array([v for r, v in gm.info["window_values"].items() if r != p.rid])
+            w = pool[rng.integers(len(pool), size=K)] + rng.uniform(-0.5, 0.5, K) * max(hi - lo, spec.ulp)
+            th = np.column_stack([th, np.clip(w, lo, hi)])
         pv = np.round(V.wrap_degrees(th), spec.decimals)
         pv = np.where(pv >= 180.0, -180.0, pv)
         allv = np.column_stack([pv, np.full(K, x)])
         g = angle_gap(spec, self.params)
         ok = np.ones(K, bool)
+        if "window" in gm.info:  # only the slot candidate (the answer, or the drawn one) in the window
+            lo, hi = gm.info["window"]
+            cols = pv if slot != "drawn" else pv[:, :n_model]
+            ok &= ~((cols >= lo - 1e-9) & (cols <= hi + 1e-9)).any(axis=1)
         for i in self._first_valid_1d(allv, ok, lambda u: np.full(u.shape, g), circular=True):
             strings = [V.format_angle(float(t), spec.decimals) for t in th[i]] + [spec.detail]
             try:
@@ -950,6 +1169,9 @@ class Stage:
             sig = np.radians(self.params["kinds"]["box"]["iso_sigma_deg"])
             Q = [Rotation.from_rotvec(rng.normal(0.0, sig, 3)).as_matrix() for _ in range(5)]
             rots = [R0 @ Q[4].T @ Q[i] for i in range(4)]
+        dec = info["decimals"]
+        centres = np.column_stack([np.round(centres[:, j], dec[f"c{j}"]) for j in range(3)])
+        dims = np.column_stack([np.round(dims[:, j], dec[f"d{j}"]) for j in range(3)])
         strings = [V.format_box(centres[i], dims[i], rots[i]) for i in range(4)]
         parsed = [V.parse(t) for t in strings]
         self._check_boxes(spec, [*parsed, v])
@@ -993,7 +1215,21 @@ class Stage:
             pick = [fixed_reveals[int(i)] for i in rng.permutation(len(fixed_reveals))[:4]]
             strings += pick
             n_draw = 4 - len(pick)
-        if n_draw:
+        if n_draw and info["relative"]:
+            G = info["gaze"]
+            f0 = gaze_fields(R0, t0, G)
+            f0[5] = float(on_cut_line(f0[5], info["cut"]))
+            hh = [h_t] * 3 + [0.3, 0.3, 0.3]
+            B = self._draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
+            for b in B:
+                b = np.array(b, float)
+                b[5] = float(from_cut_line(b[5], info["cut"]))
+                R, t = from_gaze_fields(b, G)
+                T = np.eye(4)
+                T[:3, :3] = R
+                T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+        elif n_draw:
             Rp, tp, Hf = info["frame"][p.rid]
             f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
             hh = [h_t / scale] * 3 + [h_t] * 3
@@ -1001,7 +1237,8 @@ class Stage:
             for b in B:
                 T = np.eye(4)
                 T[:3, :3] = Rotation.from_rotvec(b[3:6]).as_matrix() @ Rp
-                T[:3, 3] = tp + Hf @ (b[:3] * scale)
+                t = tp + Hf @ (b[:3] * scale)
+                T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         self._check_poses(p, [V.parse(t) for t in strings] + [v])
         return strings + [spec.detail]
@@ -1128,6 +1365,6 @@ def build_options(records: list[dict], *, seed: int = 0, params: dict | None = N
     return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress, on_failure=on_failure)
 
 
-__all__ = ["OptionError", "Stage", "build_options", "constrained_schedule", "rotation_preimage", "box_yaw",
+__all__ = ["OptionError", "Stage", "build_options", "recorded_decimals", "share_key", "constrained_schedule", "rotation_preimage", "box_yaw",
            "heading_deg",
            "centre_fields", "centre_from_fields"]
