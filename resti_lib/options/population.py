@@ -122,13 +122,21 @@ class Marginal:
         return cls(b, h, g, total)
 
     # -------------------------------------------------------------------- maps
-    def row_map(self, leave_out: int | None = None) -> "Map1D":
-        """The value <-> score map of the group, without row ``leave_out`` (its own answer)."""
+    def row_map(self, leave_out: int | None = None, lower: float | None = None, upper: float | None = None
+                ) -> "Map1D":
+        """The value <-> score map of the group, without row ``leave_out`` (its own answer), and
+        conditioned on ``lower <= b <= upper`` (what the row can print: a magnitude above zero, a
+        speed a vehicle can reach) so that no draw falls where no answer of the row can be."""
         n = self.n
         if leave_out is None or n < 2:
             p = self.total / n
         else:
             p = (self.total - ndtr((self.grid - self.b[leave_out]) / self.h[leave_out])) / (n - 1)
+        if lower is not None or upper is not None:
+            p_lo = float(np.interp(lower, self.grid, p)) if lower is not None else 0.0
+            p_hi = float(np.interp(upper, self.grid, p)) if upper is not None else 1.0
+            if p_hi - p_lo > 1e-6:
+                p = np.clip((p - p_lo) / (p_hi - p_lo), 0.0, 1.0)
         u = ndtri(np.clip(p, _P_MIN, 1.0 - _P_MIN))
         keep = np.concatenate([[True], np.diff(u) > 1e-12])
         u, g = u[keep], self.grid[keep]

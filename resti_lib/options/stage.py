@@ -56,6 +56,8 @@ from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_optio
                    pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
 
 WINDOWED = ("displacement", "path_length", "trajectory")
+#: Quantities of an object that recur when one object is asked about in several recordings.
+OBJECT_SIZES = ("length", "width", "height", "distance", "distance_to_camera", "surface_distance")
 
 ONE_D = ("scalar", "angle", "trajectory")
 
@@ -312,15 +314,17 @@ class FieldModel:
             cop = Copula(np.eye(d), d)
         return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)})
 
-    def prepare(self, rid: str | None) -> "RowDraw":
-        """The maps (without the row's own answer) and conditional model of one row, computed once;
-        a row outside the model (``None`` or not a member) draws from the whole group."""
+    def prepare(self, rid: str | None, bounds: list | None = None) -> "RowDraw":
+        """The maps (without the row's own answer, within the row's ``bounds`` [(lower, upper) per
+        field, base space]) and conditional model of one row, computed once; a row outside the model
+        (``None`` or not a member) draws from the whole group."""
         i = self.index.get(rid) if rid is not None else None
         u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
         if i is None and self.cov_scores.shape[1]:
             u_w = np.zeros(self.cov_scores.shape[1])
         mu, L = self.copula.conditional(u_w)
-        return RowDraw([f.row_map(i) for f in self.fields], mu, L)
+        bounds = bounds or [(None, None)] * len(self.fields)
+        return RowDraw([f.row_map(i, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
 
 
 def norm_quantiles(m: int) -> np.ndarray:
@@ -497,6 +501,15 @@ def _group_key(spec: OptionSpec) -> str:
     return f"{spec.task}|{spec.source}|{spec.kind}"
 
 
+def _mid_time(spec: OptionSpec) -> float:
+    """When in the video the question asks (the middle of its window): a covariate, since what a
+    camera does depends on the moment of the recording."""
+    o = spec.obs
+    if o.time_start is None or o.time_end is None:
+        return float("nan")
+    return 0.5 * (o.time_start + o.time_end)
+
+
 def _log_window(spec: OptionSpec) -> float:
     w = spec.obs.window_s
     return math.log(w) if w and w > 0 else float("nan")
@@ -587,8 +600,8 @@ class Stage:
             H = np.array([0.5 * max(scalar_gap(p.spec, self.params, p.spec.value.value),
                                     self.params["separation"]["scalar"]["min_rel_gap"] * p.spec.value.value)
                           / (p.spec.value.value + eps) for p in moving])
-            W = np.array([[_log_window(p.spec)] for p in moving])
-            W = W if np.isfinite(W).all() else None
+            W = np.array([[_log_window(p.spec), _mid_time(p.spec)] for p in moving])
+            W = W[:, np.isfinite(W).all(axis=0)] if len(W) else None
             fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=self.model["knn"],
                                 shrink=self.model["copula_shrink"], min_rows=int(self.model["min_group"]))
         else:  # only exact zeros: distractors from a weak prior about twenty printed units
@@ -795,10 +808,12 @@ class Stage:
         return GroupModel("pose", fm, info)
 
     # -------------------------------------------------------------------- building
-    def _draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, **kw) -> np.ndarray:
+    def _draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
+              **kw) -> np.ndarray:
         """Draw through the row's prepared model (kept for the row being built only: O(G) memory)."""
-        if self._cur is None or self._cur[0] != (id(gm), rid):
-            self._cur = ((id(gm), rid), gm.fields.prepare(rid))
+        key = (id(gm), rid, None if bounds is None else tuple(map(tuple, bounds)))
+        if self._cur is None or self._cur[0] != key:
+            self._cur = (key, gm.fields.prepare(rid, bounds))
         rd = self._cur[1]
         out = rd.draw(cells, s, rng, **kw)
         self._last = rd
@@ -955,12 +970,16 @@ class Stage:
         if p.answer_is_fixed:
             rid = p.rid if p.rid in gm.fields.index else None
             off = gm.info["offset"][rid] if rid is not None else self._mean_offset(gm, spec)
-            b = self._draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K)[:, :, 0]
         else:
             off = gm.info["offset"][p.rid]
+        # what the row can print: above zero (half a printed unit), below the physical bound
+        bounds = [(math.log(0.5 * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
+        if p.answer_is_fixed:
+            b = self._draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
+        else:
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
-            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K)[:, :, 0]
+            b = self._draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds)[:, :, 0]
         dec = spec.decimals
         xs = self._reuse(gm, p, np.exp(b + off) - eps, rng)
         pv = np.round(xs, dec)
@@ -994,6 +1013,8 @@ class Stage:
         distractor then takes such a value as often (:meth:`_reuse`), or the recurring answer would
         be the one candidate another row's answer vouches for."""
         seqs: dict[float, set] = defaultdict(set)
+        if not all(p.spec.obs.quantity in OBJECT_SIZES for p in ps):
+            return  # rates of a camera coincide only through coarse printing, which the draws share
         for p in ps:
             if p.spec.value.value > 0:
                 seqs[round(float(p.spec.value.value), 9)].add(p.spec.obs.sequence)
