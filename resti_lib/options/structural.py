@@ -19,6 +19,9 @@ against it:
   same video; hidden only where the video has four other premises to use as distractors;
 * ``zero_slot`` — exact zeros (stationary objects) are one printed string: when more than a fifth of
   a group is zero, that string is the answer in more than a fifth of the rows where it appears;
+* ``repeated_answer`` — rows of one source sequence that ask the same thing and share the answer
+  (the camera videos of one Waymo segment asking the ego heading change): options can make them
+  share one candidate set, but a reader of one row's answer key knows the others';
 * ``label_prior`` — the most frequent label of a categorical task;
 * ``metadata`` — an answer that follows from the video name (the Waymo camera mount names the
   Spatial Relation label): the accuracy of the best camera -> label rule, leave one out.
@@ -39,6 +42,7 @@ from .. import values as V
 from ..errors import InputError
 from ..rng import stable_seed
 from .spec import angle_gap, load_option_params, scalar_gap, spec_of
+from .stage import share_key
 
 CHANCE = 0.2
 COLUMNS = ["task", "source", "leak", "n_rows", "rows_affected", "accuracy_on_affected", "detail", "remedy"]
@@ -120,6 +124,16 @@ def structural_leaks(records: list[dict], params: dict | None = None) -> pd.Data
                         f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in "
                         f"{carriers} rows",
                         "evaluation subset keeps zero answers at one row in five")
+        reps: dict[tuple, int] = defaultdict(int)
+        for sp_ in sp:
+            if sp_.kind != "label":
+                reps[(sp_.obs.sequence, *share_key(sp_))] += 1
+        repeated = sum(c for c in reps.values() if c > 1)
+        if repeated:
+            add(task, source, "repeated_answer", n, repeated, 1.0,
+                f"{repeated} of {n} rows share question and answer with another row of their source sequence "
+                f"({sum(1 for c in reps.values() if c > 1)} groups)",
+                "they share one candidate set; the evaluation subset keeps one row of each group")
         if kind == "pose":
             same = 0
             for s in sp:
@@ -199,6 +213,15 @@ def evaluation_subset(records: list[dict], leaks: pd.DataFrame | None = None, *,
             for j, i in enumerate(ids):
                 if j not in keep:
                     drop[rid[i]] = "label_balance"
+    # one row of each group of rows of a sequence that ask the same thing with the same answer
+    seen_rep: set = set()
+    for i, sp_ in enumerate(specs):
+        if sp_ is None or sp_.kind == "label" or rid[i] in drop:
+            continue
+        k = (sp_.obs.sequence, *share_key(sp_))
+        if k in seen_rep:
+            drop[rid[i]] = "repeated_answer"
+        seen_rep.add(k)
     # one question of each same-video revealing group of Pose rows
     premises: dict[str, dict] = defaultdict(dict)
     for i, s in enumerate(specs):
@@ -228,8 +251,9 @@ def evaluation_subset(records: list[dict], leaks: pd.DataFrame | None = None, *,
     return {
         "rule": ("Rows of the release kept for a blind-balanced evaluation: cells whose answer follows from the "
                  "video name are left out; categorical answers are balanced to the rarest label per task and "
-                 "source; of Pose questions that print each other's answer as premise, one is kept; exact-zero "
-                 "answers are kept at most one in five of their group. Selection seeded; the release is unchanged."),
+                 "source; of rows of one recording asking the same thing with the same answer, one is kept; of "
+                 "Pose questions that print each other's answer as premise, one is kept; exact-zero answers are "
+                 "kept at most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),
         "n_kept": len(keep),
