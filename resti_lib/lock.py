@@ -3,8 +3,8 @@
 ``resti run`` holds ``<output_dir>/.resti.lock`` for the whole run; every folder that is published
 (:mod:`resti_lib.publish`: a release, a rebuilt release, the mini-world) is written under
 ``<parent>/.<name>.lock``. The holder removes the lock file when it is done (a killed holder leaves
-an unlocked file behind, which the next process simply locks). A second process that finds the lock held gets a :class:`BusyError`
-naming the holder (pid, command, start time), or waits when asked to. The kernel releases the lock
+an unlocked file behind, which the next process simply locks). A second process that finds the lock
+held gets a :class:`BusyError` naming the holder (pid, command, start time), or waits when asked to. The kernel releases the lock
 when its holder exits, also when it is killed, so a crashed run never leaves a stale lock.
 
 Locks are re-entrant within one process (the world lock is taken by the run, then again by the

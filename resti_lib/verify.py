@@ -23,7 +23,7 @@ from pathlib import Path
 
 from . import LETTERS, TASKS
 from .errors import InputError
-from .io.benchmark import Problem, Release, load_release
+from .io.benchmark import Release, load_release
 from .io.files import decode_text, file_kind, read_bytes, sha256_file
 from .options.checks import ROW_CHECKS, parse_row
 
@@ -354,10 +354,6 @@ def format_text(v: dict) -> str:
         verdict += f" (not checked: {', '.join(skipped)})"
     lines.append(verdict)
     return "\n".join(lines)
-
-
-def problems_to_dict(problems: list[Problem]) -> list[dict]:
-    return [{"check": p.check, "row": str(p.row), "field": p.field, "message": p.message} for p in problems]
 
 
 def to_json(v: dict) -> str:

@@ -103,7 +103,7 @@ def _pose(rng, plant) -> list:
 
 def _box_strings(rng, n, *, correlated=True, pool=None) -> list:
     out = []
-    for k in range(n):
+    for _k in range(n):
         c = rng.normal([0, 0.5, 8], [2, 0.3, 2])
         if correlated or pool is None:
             s = np.exp(rng.normal(0, 0.3))

@@ -90,7 +90,7 @@ def test_label_prior_test_is_exact_on_uniform_labels():
     rng = np.random.default_rng(11)
     labels = ["Front", "Front-Left", "Front-Right", "Left", "Right"]
     small = 0
-    for rep in range(60):
+    for _rep in range(60):
         rows = []
         for i in range(60):
             order = rng.permutation(5)

@@ -292,13 +292,16 @@ def test_segment_turns_straight_left_straight():
     v = 10.0
     pts, yaws = [], []
     for s in np.arange(0, 20.0, v * dt):
-        pts.append([s, 0.0, 0.0]); yaws.append(0.0)
+        pts.append([s, 0.0, 0.0])
+        yaws.append(0.0)
     arc = math.pi / 2 * 10.0
     for s in np.arange(0, arc, v * dt):
         a = s / 10.0
-        pts.append([20.0 + 10 * math.sin(a), 10 - 10 * math.cos(a), 0.0]); yaws.append(math.degrees(a))
+        pts.append([20.0 + 10 * math.sin(a), 10 - 10 * math.cos(a), 0.0])
+        yaws.append(math.degrees(a))
     for s in np.arange(0, 30.0 + 1e-9, v * dt):
-        pts.append([30.0, 10.0 + s, 0.0]); yaws.append(90.0)
+        pts.append([30.0, 10.0 + s, 0.0])
+        yaws.append(90.0)
     pts = np.array(pts)
     R = np.stack([rz(y) for y in yaws])  # vehicle frame: forward +X
     tr = G.PoseTrack(np.arange(len(pts)) * dt, F.make_T(R, pts), name="car")

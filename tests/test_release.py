@@ -38,8 +38,8 @@ def test_assemble_accounts_for_every_row(tmp_path):
     legacy_path, legacy = _world(tmp_path)
     v = assemble(legacy_path, tmp_path / "out" / "tasks", tmp_path / "out" / "release")
     rel = tmp_path / "out" / "release"
-    acc = [json.loads(l) for l in (rel / "resti.jsonl").read_text().splitlines()]
-    exc = [json.loads(l) for l in (rel / "excluded.jsonl").read_text().splitlines()]
+    acc = [json.loads(line) for line in (rel / "resti.jsonl").read_text().splitlines()]
+    exc = [json.loads(line) for line in (rel / "excluded.jsonl").read_text().splitlines()]
     assert len(acc) + len(exc) == len(legacy) == 13
     assert {r["Legacy Row Key"] for r in acc} | {r["key"] for r in exc} == set(legacy["Legacy Row Key"])
     # the unknown task row is excluded as malformed, with its reason

@@ -37,7 +37,8 @@ def test_malformed_legacy_rows_are_excluded_with_a_reason(world, tmp_path):
     df.loc[i, "Candidates"] = '{"A": "1.00m", "B": '          # truncated Candidates JSON
     bad[i] = "Candidates"
     j = df.index[df["Task"] == "Speed & Acceleration"][0]
-    c = json.loads(df.loc[j, "Candidates"]); c.pop("E")
+    c = json.loads(df.loc[j, "Candidates"])
+    c.pop("E")
     df.loc[j, "Candidates"] = json.dumps(c)                    # four candidates
     bad[j] = "Candidates"
     k = df.index[df["Task"] == "Pose Estimation"][0]

@@ -38,14 +38,14 @@ def test_mount_relation_from_extrinsic_yaw(yaw, label):
 
 def test_relative_position_cases():
     up = np.array([0.0, -1.0, 0.0])  # camera looking horizontally: scene up = -Y in OpenCV axes
-    I, lwh = np.eye(3), np.array([0.2, 0.2, 0.1])  # B's box: local z = its height
+    eye, lwh = np.eye(3), np.array([0.2, 0.2, 0.1])  # B's box: local z = its height
     Rb = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # box z -> camera -Y (up)
     b = np.array([0.0, 0.0, 1.0])
-    assert RE.relative_position(b + [0.30, 0, 0.1], b, I, lwh, up)[0] == "Right"
-    assert RE.relative_position(b + [-0.30, 0, 0.1], b, I, lwh, up)[0] == "Left"
-    assert RE.relative_position(b + [0.05, 0, 0.4], b, I, lwh, up)[0] == "Farther"
-    assert RE.relative_position(b + [0.05, 0, -0.4], b, I, lwh, up)[0] == "Closer"
-    lab, ev = RE.relative_position(b + [0.2, 0, 0.2], b, I, lwh, up)
+    assert RE.relative_position(b + [0.30, 0, 0.1], b, eye, lwh, up)[0] == "Right"
+    assert RE.relative_position(b + [-0.30, 0, 0.1], b, eye, lwh, up)[0] == "Left"
+    assert RE.relative_position(b + [0.05, 0, 0.4], b, eye, lwh, up)[0] == "Farther"
+    assert RE.relative_position(b + [0.05, 0, -0.4], b, eye, lwh, up)[0] == "Closer"
+    lab, ev = RE.relative_position(b + [0.2, 0, 0.2], b, eye, lwh, up)
     assert lab is None and ev["dominance"] == pytest.approx(1.0) and ev["margin_m"] == pytest.approx(-0.1)
     lab, ev = RE.relative_position(b + [0.01, -0.09, 0.0], b, Rb, lwh, up)  # 0.09 above centre, top at 0.05
     assert lab == "Directly above" and ev["height_above_top_m"] == pytest.approx(0.04)

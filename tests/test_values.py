@@ -55,7 +55,8 @@ def test_pose_both_spacings():
 
 
 def test_box_roundtrip_and_heading():
-    c = math.cos(math.radians(30)); s = math.sin(math.radians(30))
+    c = math.cos(math.radians(30))
+    s = math.sin(math.radians(30))
     R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
     text = V.format_box([1.0, -0.5, 2.25], [0.5, 0.25, 1.0], R)
     obj = json.loads(text)

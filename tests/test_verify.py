@@ -38,7 +38,7 @@ def _rotation_text(s: str) -> tuple:
 def test_v5_answer_interface_defects_named(resti_v5_dir):
     """The rows verify names are the rows a reading of the strings finds: Pose candidates printing one
     rotation, and distractors no vehicle could reach within the question's window."""
-    rows = [json.loads(l) for l in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
+    rows = [json.loads(line) for line in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
     v = verify_path(resti_v5_dir)
     repeated = {r["ReSTI ID"] for r in rows if r["Task"] == "Pose Estimation"
                 and len({_rotation_text(s) for s in r["Candidates"].values()}) < 5}
@@ -56,7 +56,7 @@ def test_v5_answer_interface_defects_named(resti_v5_dir):
 
 
 def test_v5_counts_by_independent_reading(resti_v5_dir):
-    rows = [json.loads(l) for l in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
+    rows = [json.loads(line) for line in open(resti_v5_dir / "resti.jsonl", encoding="utf-8")]
     v = verify_path(resti_v5_dir)
     assert v["answer_letters"] == dict(sorted(Counter(r["Answer"] for r in rows).items()))
 
@@ -65,7 +65,7 @@ def test_v5_counts_by_independent_reading(resti_v5_dir):
 def v5_copy(resti_v5_dir, tmp_path):
     dst = tmp_path / "v5"
     shutil.copytree(resti_v5_dir, dst)
-    rows = [json.loads(l) for l in open(dst / "resti.jsonl", encoding="utf-8")]
+    rows = [json.loads(line) for line in open(dst / "resti.jsonl", encoding="utf-8")]
     return dst, rows
 
 
@@ -126,7 +126,7 @@ def test_corrupted_copy_names_each_failure_and_row(v5_copy):
 
 def test_overlap_and_duplicate_ids(v5_copy):
     dst, rows = v5_copy
-    excluded = [json.loads(l) for l in open(dst / "excluded.jsonl", encoding="utf-8")]
+    excluded = [json.loads(line) for line in open(dst / "excluded.jsonl", encoding="utf-8")]
     rows[1]["ReSTI ID"] = rows[0]["ReSTI ID"]
     rows[2]["Legacy Row Key"] = excluded[0]["key"]
     _write(dst, rows)

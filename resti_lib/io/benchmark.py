@@ -24,7 +24,7 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from ..errors import InputError
-from .files import atomic_write_bytes, open_regular, parse_json, read_json_object, read_jsonl
+from .files import open_regular, parse_json, read_json_object, read_jsonl
 
 LEGACY_COLUMNS = ("Video", "Source", "Task", "QType", "Question", "Prompt", "time_start", "time_end",
                   "Candidates", "Answer", "Answer Detail", "ID", "scene")
@@ -432,10 +432,6 @@ def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
 def jsonl_text(rows: Iterable[dict], *, sort_keys: bool = False) -> str:
     """One JSON object per line, UTF-8 text kept as is (the v5 encoding), trailing newline."""
     return "".join(json.dumps(r, ensure_ascii=False, sort_keys=sort_keys) + "\n" for r in rows)
-
-
-def write_jsonl(rows: Iterable[dict], path: Path, *, sort_keys: bool = False) -> None:
-    atomic_write_bytes(Path(path), jsonl_text(rows, sort_keys=sort_keys).encode("utf-8"))
 
 
 def rows_to_parquet_bytes(rows: list[dict]) -> bytes:

@@ -52,8 +52,20 @@ from .. import values as V
 from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
 from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
-from .spec import (OptionSpec, angle_gap, box_floors, box_separation, load_option_params, per_source, pose_floors,
-                   pose_separation, scalar_bounds, scalar_gap, spec_of, speed_bound)
+from .spec import (
+    OptionSpec,
+    angle_gap,
+    box_floors,
+    box_separation,
+    load_option_params,
+    per_source,
+    pose_floors,
+    pose_separation,
+    scalar_bounds,
+    scalar_gap,
+    spec_of,
+    speed_bound,
+)
 
 WINDOWED = ("displacement", "path_length", "trajectory")
 #: Quantities of an object that recur when one object is asked about in several recordings.
@@ -1386,6 +1398,5 @@ def build_options(records: list[dict], *, seed: int = 0, params: dict | None = N
     return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress, on_failure=on_failure)
 
 
-__all__ = ["OptionError", "Stage", "build_options", "recorded_decimals", "share_key", "constrained_schedule", "rotation_preimage", "box_yaw",
-           "heading_deg",
-           "centre_fields", "centre_from_fields"]
+__all__ = ["OptionError", "Stage", "box_yaw", "build_options", "centre_fields", "centre_from_fields",
+           "constrained_schedule", "heading_deg", "recorded_decimals", "rotation_preimage", "share_key"]
