@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from .io.benchmark import atomic_write_bytes, load_release
+from .io.benchmark import load_release
+from .io.files import atomic_write_bytes
 from .options.attacks import attack_table, headline, select, strongest
 from .tables import write_table
 from .verify import verify_release

@@ -45,7 +45,8 @@ from .. import values as V
 from ..adjudicate import Diagnosis, Rule, compare_scalar
 from ..contract import MISSING_DEFECTS, Contract
 from ..errors import ContractError
-from ..io.benchmark import atomic_write_bytes, jsonl_text, parse_key
+from ..io.benchmark import jsonl_text, parse_key
+from ..io.files import atomic_write_bytes
 from ..measure import Measured, measure
 
 KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label")
