@@ -8,7 +8,7 @@ PIP := $(BIN)/pip --disable-pip-version-check -q
 # `make report FORCE=1` reruns every stage (default: only the stages whose inputs, params or code changed)
 RUN_FLAGS := $(if $(FORCE),--force,)
 
-.PHONY: help venv report reoption test bench bench-scale screenshot browser lint clean strip-notebooks
+.PHONY: help venv report reoption test test-fast bench bench-scale screenshot browser lint clean strip-notebooks
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -34,6 +34,9 @@ reoption: $(STAMP)  ## rebuild the options of the public ReSTI v5 release (noteb
 
 test: $(STAMP) browser  ## the full test suite, as CI runs it (real data: ../shared or RESTI_SHARED; installs chromium if it can)
 	$(BIN)/python -m pytest -q
+
+test-fast: $(STAMP)  ## the edit loop: every test but notebooks, the main job and real-data checks (make test runs all)
+	$(BIN)/python -m pytest -q -x -m "not notebook and not slow and not shared"
 
 bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, make report cold/warm/one task
 	$(BIN)/python -m bench

@@ -103,3 +103,10 @@ def main_run(miniworld, tmp_path_factory) -> MainRun:
     proc = run_cli(["run", "--params", str(params)], umask=MAIN_RUN_UMASK)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return MainRun(out, params, cfg, proc)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that read the shared main-job run (``main_run``) are slow: ``make test-fast`` leaves them out."""
+    for item in items:
+        if "main_run" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)

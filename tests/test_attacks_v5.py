@@ -11,7 +11,7 @@ import pytest
 from resti_lib import values as V
 from resti_lib.options.attacks import attack_table, headline
 
-pytestmark = pytest.mark.shared
+pytestmark = [pytest.mark.shared, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

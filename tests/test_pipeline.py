@@ -17,7 +17,7 @@ from resti_lib import values as V
 from tests.conftest import MAIN_RUN_UMASK, main_params, run_cli
 from tests.test_report import assert_links_resolve
 
-pytestmark = pytest.mark.notebook
+pytestmark = [pytest.mark.notebook, pytest.mark.slow]
 
 RELEASE_FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json",
                  "release.json", "SHA256SUMS")

@@ -351,6 +351,7 @@ def test_v5_balanced_letters_and_ranks(rebuilt):
 
 
 @pytest.mark.shared
+@pytest.mark.slow
 def test_v5_no_significant_attack_after(rebuilt):
     before = attack_table(rebuilt.before)
     assert before["significant"].any()  # the input leaks (Pose centroid/medoid, Speed min, ...)

@@ -7,6 +7,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from resti_lib.report import write_index
 from resti_lib.sources.context import check_real_params
@@ -191,6 +192,7 @@ def test_figure_registry_order_and_captions(tmp_path):
     assert all(len(s.caption) > 40 for s in FIGURES)
 
 
+@pytest.mark.slow
 def test_default_run_makes_only_registered_figures(main_run):
     from resti_lib.figures import spec_for
 
