@@ -248,3 +248,24 @@ def test_structural_leaks_and_evaluation_subset():
     sub2 = evaluation_subset(rows2)
     kept = [r["Answer Detail"] for r in rows2 if r["ReSTI ID"] in set(sub2["ids"])]
     assert sorted(kept) == sorted(labels * 5)
+
+
+def test_format_check_reads_an_ill_conditioned_heading():
+    # a box whose x axis is nearly vertical: its heading atan2(R10, R00) cannot be recomputed from the
+    # six-decimal entries, yet every candidate is printed by the one formatter from an exact rotation
+    base = Rotation.from_euler("yz", [-89.997, -58.6], degrees=True).as_matrix()
+    boxes = []
+    for k in range(5):
+        R = Rotation.from_euler("z", 7.0 * k, degrees=True).as_matrix() @ base
+        boxes.append(V.format_box([-1.7 + 0.3 * k, 0.8, 10.6], [0.1, 0.84, 2.5 + 0.1 * k], R))
+    v0 = V.parse(boxes[0])
+    assert abs(V.wrap_degrees(v0.heading - V.box_heading(np.array(v0.R)))) > 0.05  # the heading is ill-conditioned
+    q = ("At 3.0 seconds, what is the oriented 3D bounding box of the tall sign in the OpenCV frame of the FRONT camera "
+         "(+X right, +Y down, +Z forward)?")
+    r = _row(0, "3D Video Grounding", "Waymo", q, boxes[0], t0=3.0, t1=3.0)
+    r["Candidates"] = dict(zip(LETTERS, boxes))
+    assert ROW_CHECKS["format_consistency"](parse_row(r, "r0")) is None
+    # a candidate printed with a fourth decimal in its centre is named
+    r["Candidates"]["C"] = r["Candidates"]["C"].replace("[-1.1,", "[-1.1004,")
+    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0"))
+    assert msg and msg.startswith("C:")
