@@ -18,9 +18,8 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-import yaml
 
-from .. import SOURCES, paths
+from .. import SOURCES, defaults
 from .. import values as V
 from ..errors import InputError
 from .observables import Observables, observables_of
@@ -60,27 +59,12 @@ def _merge(base: dict, over: dict | None) -> dict:
     return out
 
 
-@lru_cache(maxsize=8)
-def _read_yaml(path: str) -> dict:
-    p = paths.resolve(path)
-    try:
-        with open(p, encoding="utf-8") as f:
-            data = yaml.safe_load(f) or {}
-    except OSError as e:
-        raise InputError(f"cannot read option params: {e.strerror}", file=p) from None
-    except yaml.YAMLError as e:
-        raise InputError(f"option params are not valid YAML ({e.__class__.__name__})", file=p) from None
-    if not isinstance(data, dict):
-        raise InputError("option params must be a mapping", file=p)
-    return data
-
-
-def load_option_params(overrides: dict | None = None, path: str = OPTION_PARAMS) -> dict:
+def load_option_params(overrides: dict | None = None) -> dict:
     """``params/options.yaml`` deep-merged with ``overrides`` (same nesting)."""
-    base = _read_yaml(str(path))
+    base = defaults.load("options")
     unknown = sorted(set(overrides or {}) - set(base))
     if unknown:
-        raise InputError(f"unknown option parameter group(s) {unknown}; known: {sorted(base)}", file=path)
+        raise InputError(f"unknown option parameter group(s) {unknown}; known: {sorted(base)}", file=OPTION_PARAMS)
     return _merge(base, overrides)
 
 
@@ -99,7 +83,7 @@ def task_rule(task: str) -> Rule:
         return Rule()
     f, key = where
     try:
-        v = _read_yaml(f"params/{f}.yaml").get(key)
+        v = defaults.load(f).get(key)
     except InputError:
         return Rule()
     if isinstance(v, dict):
