@@ -37,15 +37,14 @@ import pandas as pd
 
 from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
-from ..contract import Contract
 from ..errors import ContractError
 from ..referents import SceneView
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude
 from .motion import (
+    MotionTask,
     ambiguous_subject,
     camera_subject,
-    read_motion_contract,
     reading_per_source,
     row_reading,
     source_frames,
@@ -82,18 +81,13 @@ def question_text(op: str, subject: str, t0: float, t1: float) -> str:
 
 
 @register_task
-class Displacement(Task):
+class Displacement(MotionTask):
     name = TASK
     params_name = "displacement"
     legacy_kind = V.Scalar
     operators = ("displacement", "path_length")
 
-    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
-        op, open_statistic = operator_of(row.get("Question", ""))
-        c, _ = read_motion_contract(row, video_map, op)
-        if open_statistic:
-            c.miss("statistic")
-        return c
+    operator_of = staticmethod(operator_of)
 
     def reconstruct(self, case: Case) -> None:
         c, params, r = case.contract, case.params, case.row

@@ -41,7 +41,7 @@ from ..geometry import trajectory as G
 from ..geometry.trajectory import PoseTrack
 from ..referents import GENERIC_NOUNS, WAYMO_NOUNS, SceneView, box_from, box_visibility, in_camera, size_fits
 from ..sources.context import derived
-from .base import Exclude
+from .base import Exclude, Task
 from .scalar_audit import tie_break_by_legacy
 
 __all__ = ["Subject", "ambiguous_subject", "camera_subject", "read_motion_contract", "source_frames",
@@ -73,6 +73,22 @@ def read_motion_contract(row: dict, video_map: dict | None, operator: str) -> tu
     if not c.unit_stated:
         c.miss("unit")
     return c, ql
+
+
+class MotionTask(Task):
+    """What the motion tasks (Displacement, Speed) share: the contract of a motion question, whose
+    operator each task reads from the wording (``operator_of``: operator, statistic left open)."""
+
+    @staticmethod
+    def operator_of(question: str) -> tuple[str, bool]:
+        raise NotImplementedError
+
+    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
+        op, open_statistic = self.operator_of(row.get("Question", ""))
+        c, _ = read_motion_contract(row, video_map, op)
+        if open_statistic:
+            c.miss("statistic")
+        return c
 
 
 class Subject:

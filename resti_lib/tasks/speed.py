@@ -40,16 +40,15 @@ import pandas as pd
 
 from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
-from ..contract import Contract
 from ..errors import ContractError
 from ..measure.motion import EST_STORED
 from ..referents import SceneView
 from . import register_task
-from .base import AnswerSpec, Case, Exclude, Task
+from .base import AnswerSpec, Case, Exclude
 from .motion import (
+    MotionTask,
     ambiguous_subject,
     camera_subject,
-    read_motion_contract,
     reading_per_source,
     row_reading,
     source_frames,
@@ -91,18 +90,13 @@ def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | 
 
 
 @register_task
-class Speed(Task):
+class Speed(MotionTask):
     name = TASK
     params_name = "speed"
     legacy_kind = V.Scalar
     operators = ("average_velocity", "average_speed", "acceleration")
 
-    def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
-        op, open_statistic = operator_of(row.get("Question", ""))
-        c, _ = read_motion_contract(row, video_map, op)
-        if open_statistic:
-            c.miss("statistic")
-        return c
+    operator_of = staticmethod(operator_of)
 
     def reconstruct(self, case: Case) -> None:
         c, params, r = case.contract, case.params, case.row
