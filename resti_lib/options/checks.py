@@ -11,6 +11,7 @@ import json
 import math
 import re
 from dataclasses import dataclass
+from functools import cache
 from typing import Callable
 
 import numpy as np
@@ -281,9 +282,17 @@ def _ranges(p: ParsedRow):
 # The answer interface's requirements (params/options.yaml; the option stage builds to them):
 # separation, physical possibility given the question, formatting that marks no candidate.
 
+@cache
+def _default_option_params() -> dict:
+    """``params/options.yaml`` read once per process (the checks only read it)."""
+    from .spec import load_option_params
+
+    return load_option_params()
+
+
 def _spec(p: ParsedRow):
     """The row's option spec and the option params, or None when the row cannot be read."""
-    from .spec import load_option_params, spec_of
+    from .spec import spec_of
 
     if p.record is None or p.detail_value is None or not p.complete:
         return None, None
@@ -291,7 +300,7 @@ def _spec(p: ParsedRow):
         spec = spec_of(p.record, str(p.rid))
     except InputError:
         return None, None
-    return spec, (p.option_params or load_option_params())
+    return spec, (p.option_params or _default_option_params())
 
 
 @row_check("separation")
