@@ -187,11 +187,10 @@ def waymo_box(seg: WaymoSegment, laser_object_id: str, t: float, camera: int, *,
               ) -> CameraBox:
     """Waymo box in a camera at ``t``: vehicle frame -> world (vehicle pose) -> camera (OpenCV)."""
     k, micros, tk = waymo_frame(seg, t, tol)
-    boxes = {b["id"]: b for b in seg.boxes_at(tk, tol=1e-6)}
-    if str(laser_object_id) not in boxes:
+    b = seg.box_at(tk, str(laser_object_id), tol=1e-6)
+    if b is None:
         raise InputError(f"object {laser_object_id} has no box at t={tk:.6f} s", file=seg.path("lidar_box"),
                          field="key.laser_object_id")
-    b = boxes[str(laser_object_id)]
     T = waymo_cam_from_world(seg, k, camera) @ b["T_world_from_box"]
     return CameraBox(T[:3, 3].copy(), np.asarray(b["size"], float), T[:3, :3].copy(),
                      "(W(t) E C)^-1 W(t) T_vehicle<-box", {"frame_index": k, "micros": micros, "t": tk,

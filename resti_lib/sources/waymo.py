@@ -478,23 +478,51 @@ class WaymoSegment:
         (rad), ``size`` (length, width, height), ``T_world_from_box``, ``center_world``,
         ``heading_world`` (rad, yaw of box +X in the world), ``speed``/``accel`` (vehicle frame).
         """
-        df = self.lidar_boxes
         t_frame = self.nearest_box_frame(t)
         if t_frame is None:
             return []
         if abs(t_frame - t) > tol:
             raise InputError(f"no box frame within {tol} s of t={t} (nearest {t_frame:.6f} s)",
                              file=self.path("lidar_box"), field=KEY_MICROS)
-        sel = df[df["t"] == t_frame]
-        T = self._box_world(sel)
-        out = []
-        for j, (_, r) in enumerate(sel.iterrows()):
-            out.append({"id": r["id"], "type": r["type_name"], "t": float(r["t"]), "micros": int(r["micros"]),
-                        "center_vehicle": np.array([r["cx"], r["cy"], r["cz"]]),
-                        "heading_vehicle": float(r["heading"]),
-                        "size": np.array([r["length"], r["width"], r["height"]]),
-                        "T_world_from_box": T[j], "center_world": T[j, :3, 3].copy(),
-                        "heading_world": float(np.arctan2(T[j, 1, 0], T[j, 0, 0])),
-                        "speed": np.array([r["speed_x"], r["speed_y"], r["speed_z"]]),
-                        "accel": np.array([r["accel_x"], r["accel_y"], r["accel_z"]])})
-        return out
+        a = self._box_arrays
+        k = int(np.searchsorted(self.box_frame_times, t_frame))
+        return [self._box_dict(i) for i in a["order"][a["starts"][k]:a["starts"][k + 1]]]
+
+    def box_at(self, t: float, laser_object_id: str, *, tol: float = 1e-3) -> dict | None:
+        """The box of one object in the frame at segment time ``t`` (as :meth:`boxes_at`), None when
+        the frame has no box of that object."""
+        t_frame = self.nearest_box_frame(t)
+        if t_frame is None:
+            return None
+        if abs(t_frame - t) > tol:
+            raise InputError(f"no box frame within {tol} s of t={t} (nearest {t_frame:.6f} s)",
+                             file=self.path("lidar_box"), field=KEY_MICROS)
+        a = self._box_arrays
+        k = int(np.searchsorted(self.box_frame_times, t_frame))
+        rows = a["order"][a["starts"][k]:a["starts"][k + 1]]
+        hit = rows[a["id"][rows] == str(laser_object_id)]
+        return self._box_dict(int(hit[-1])) if hit.size else None  # the last, as a dict by id keeps it
+
+    def _box_dict(self, i: int) -> dict:
+        a = self._box_arrays
+        T = a["T"][i].copy()
+        return {"id": a["id"][i], "type": a["type"][i], "t": float(a["t"][i]), "micros": int(a["micros"][i]),
+                "center_vehicle": a["center"][i].copy(), "heading_vehicle": float(a["heading"][i]),
+                "size": a["size"][i].copy(), "T_world_from_box": T, "center_world": T[:3, 3].copy(),
+                "heading_world": float(np.arctan2(T[1, 0], T[0, 0])),
+                "speed": a["speed"][i].copy(), "accel": a["accel"][i].copy()}
+
+    @cached_property
+    def _box_arrays(self) -> dict:
+        """The box table as arrays, world poses included, with its rows grouped by frame (in file
+        order within a frame): computed once per segment, so a frame's boxes cost no table scan."""
+        df = self.lidar_boxes
+        t = df["t"].to_numpy()
+        order = np.argsort(t, kind="stable")
+        starts = np.searchsorted(t[order], self.box_frame_times, side="left")
+        return {"order": order, "starts": np.append(starts, t.size), "t": t, "T": self._box_world(df),
+                "id": df["id"].to_numpy(), "type": df["type_name"].to_numpy(), "micros": df["micros"].to_numpy(),
+                "center": df[["cx", "cy", "cz"]].to_numpy(), "heading": df["heading"].to_numpy(),
+                "size": df[["length", "width", "height"]].to_numpy(),
+                "speed": df[["speed_x", "speed_y", "speed_z"]].to_numpy(),
+                "accel": df[["accel_x", "accel_y", "accel_z"]].to_numpy()}

@@ -50,7 +50,7 @@ import json
 import math
 import re
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -530,7 +530,12 @@ class Grounding(Task):
                              "heading": box.heading, "checks": checks}
         o.evidence["corrected_to_target_m"] = float(np.linalg.norm(corrected_world - target.world_center))
         o.evidence["target_world_center"] = target.world_center.tolist()
-        case.state.update(diag=diag, target=target, box=box, view=view, desc=desc)
+        # the case keeps what diagnosis and rewrite read, not the frame's other instances: every case
+        # lives until the task's group diagnosis, so a retained view would grow memory with the rows
+        case.state.update(box=box, target=target, desc=desc,
+                          winner=diag["winner"] if diag is not None else None,
+                          same_target=diag is not None and diag["instance"] is target,
+                          view=replace(view, instances=[]))
         o.time_start = o.time_end = float(view.t)
         case.observables.update(subject=noun_phrase(desc), subject_class=label, frame=dict(view.frame),
                                 T_world_from_cam=view.T_world_from_cam)
@@ -538,7 +543,7 @@ class Grounding(Task):
 
     def diagnose(self, case: Case) -> None:
         p, legacy, s = case.params, case.legacy, case.state
-        box, target, diag = s["box"], s["target"], s["diag"]
+        box, target = s["box"], s["target"]
         rule = Rule(abs_tol=float(p["centre_abs_tol_m"]))
         case.rule = {**rule.to_dict(), "per_axis_printed_unit": True}
         ev: dict = {}
@@ -558,8 +563,7 @@ class Grounding(Task):
                 ev["lwh"]["hypotheses"] = {k: np.asarray(v).tolist() for k, v in target.sizes.items()}
                 ev["lwh"]["matches"] = {k: bool(np.abs(np.array(legacy.lwh) - v).max() <= ltol)
                                         for k, v in target.sizes.items()}
-        winner = diag["winner"] if diag is not None else None
-        same_target = diag is not None and diag["instance"] is target
+        winner, same_target = s["winner"], s["same_target"]
         if legacy is None:
             d = Diagnosis(False, evidence={**ev, "verdict_reason": "legacy detail unreadable; the box is derived "
                                                                    "under the explicit contract"})
