@@ -532,7 +532,7 @@ class Grounding(Task):
         o.evidence["target_world_center"] = target.world_center.tolist()
         # the case keeps what diagnosis and rewrite read, not the frame's other instances: every case
         # lives until the task's group diagnosis, so a retained view would grow memory with the rows
-        case.state.update(box=box, target=target, desc=desc,
+        case.state.update(box=box, target=replace(target, hypotheses={}, shifted={}), desc=desc,
                           winner=diag["winner"] if diag is not None else None,
                           same_target=diag is not None and diag["instance"] is target,
                           view=replace(view, instances=[]))
