@@ -1055,7 +1055,10 @@ class Stage:
             return xs
         j = np.clip(np.searchsorted(pool, xs), 1, len(pool) - 1)
         near = np.where(np.abs(pool[j - 1] - xs) <= np.abs(pool[j] - xs), pool[j - 1], pool[j])
-        usable = np.vectorize(lambda v: bool(seqs[round(float(v), 9)] - {own}))(near)
+        # a value is usable when another recording has it (one lookup per distinct value)
+        vals, at = np.unique(near, return_inverse=True)
+        other = np.array([len(q) > (own in q) for q in (seqs[round(float(x), 9)] for x in vals)], dtype=bool)
+        usable = other[at].reshape(near.shape)
         already = usable & (np.abs(np.round(xs, p.spec.decimals) - near) < 1e-9)
         natural = float(already.mean())
         if natural >= rate:
