@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from typing import Callable
 
@@ -51,6 +51,7 @@ class ParsedRow:
     time_end: object
     record: dict | None = None
     option_params: dict | None = None
+    spec_read: tuple | None = field(default=None, repr=False, compare=False)  # (spec, params) once read
 
     @property
     def complete(self) -> bool:
@@ -294,13 +295,14 @@ def _spec(p: ParsedRow):
     """The row's option spec and the option params, or None when the row cannot be read."""
     from .spec import spec_of
 
-    if p.record is None or p.detail_value is None or not p.complete:
-        return None, None
-    try:
-        spec = spec_of(p.record, str(p.rid))
-    except InputError:
-        return None, None
-    return spec, (p.option_params or _default_option_params())
+    if p.spec_read is None:  # read once per row: several checks ask
+        p.spec_read = (None, None)
+        if p.record is not None and p.detail_value is not None and p.complete:
+            try:
+                p.spec_read = (spec_of(p.record, str(p.rid)), p.option_params or _default_option_params())
+            except InputError:
+                pass
+    return p.spec_read
 
 
 @row_check("separation")

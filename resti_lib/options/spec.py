@@ -241,8 +241,17 @@ def rotation_angle_deg(Ra, Rb) -> float:
 
 
 def _so3(R) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    """The nearest rotation (read-only: a row's candidates meet in every pair, so each printed
+    matrix is projected once)."""
+    return _so3_of(tuple(np.asarray(R, float).ravel().tolist()))
+
+
+@lru_cache(maxsize=4096)
+def _so3_of(flat: tuple) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(np.array(flat, dtype=float).reshape(3, 3))
+    out = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    out.flags.writeable = False
+    return out
 
 
 __all__ = ["OptionSpec", "Rule", "spec_of", "load_option_params", "task_rule", "kind_of", "per_source",

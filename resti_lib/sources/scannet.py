@@ -562,7 +562,12 @@ class ScanNetScene:
                          field="pose")
 
     def camera_track(self) -> PoseTrack:
-        """Camera track ``T_raw_from_cam`` (OpenCV axes), ``t = frame / fps``; invalid poses flagged."""
+        """Camera track ``T_raw_from_cam`` (OpenCV axes), ``t = frame / fps``; invalid poses flagged.
+        Built once per scene and shared (read-only)."""
+        return self._camera_track
+
+    @cached_property
+    def _camera_track(self) -> PoseTrack:
         frames, T, src, _ = self._poses
         return PoseTrack(frames / self.fps, T, name=f"{self.scene} camera", source=src,
                          meta={"frames": frames, "fps": self.fps, "frame": "raw scan frame"})

@@ -141,6 +141,13 @@ def _scannet_native_centres(scene: ScanNetScene) -> dict:
                                                      for oid, inst in scene.instances.items()})
 
 
+def _stack(shifts: dict) -> tuple[list, np.ndarray]:
+    """Frame offsets and their transforms as one ``[k, 4, 4]`` stack (every instance of a view is
+    moved through all of them at once)."""
+    ds = list(shifts)
+    return ds, (np.stack([shifts[d] for d in ds]) if ds else np.zeros((0, 4, 4)))
+
+
 def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
     """ScanNet at ``t``: every instance with the correct box and the legacy hypotheses."""
     f, tf = scannet_frame(scene, t, tol=float(p["frame_time_tol_s"]))
@@ -158,6 +165,9 @@ def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
             continue
         shifts[d] = inv(track.T[k])
     native = _scannet_native_centres(scene)
+    # the neighbouring-frame hypotheses of every instance from one stack of transforms
+    ds, S = _stack(shifts)
+    SAi = S @ Ai
     insts = []
     for oid, inst in sorted(scene.instances.items()):
         box = camera_box("ScanNet", scene, oid, tf, params=p)
@@ -172,8 +182,9 @@ def scannet_view(scene: ScanNetScene, t: float, p: dict) -> FrameView:
             "annotation_frame": c.copy(),
             "raw_frame": (Ai @ ch)[:3],
         }
-        shifted = {"correct": {d: (S @ Ai @ ch)[:3] for d, S in shifts.items()},
-                   "alignment_omitted": {d: (S @ ch)[:3] for d, S in shifts.items()}}
+        pc, po = SAi @ ch, S @ ch
+        shifted = {"correct": {d: pc[j, :3] for j, d in enumerate(ds)},
+                   "alignment_omitted": {d: po[j, :3] for j, d in enumerate(ds)}}
         headings = {"camera_atan2_R10_R00": box.heading,
                     "camera_atan2_R10_R00_alignment_omitted": V.box_heading(Pi[:3, :3]),  # axis-aligned box
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
@@ -201,6 +212,7 @@ def waymo_view(seg: WaymoSegment, camera: int, t: float, p: dict) -> FrameView:
     Wn = int(p["time_shift_frames"].get("Waymo", 0))
     shifts = {d: inv(ego.T[k + d] @ E @ C) for d in range(-Wn, Wn + 1)
               if d != 0 and 0 <= k + d < len(ego) and ego.valid[k + d]}
+    ds, S = _stack(shifts)
     insts = []
     for b in seg.boxes_at(tk, tol=1e-6):
         box = camera_box("Waymo", seg, b["id"], tk, camera=camera, params=p)
@@ -212,7 +224,7 @@ def waymo_view(seg: WaymoSegment, camera: int, t: float, p: dict) -> FrameView:
             "world_frame": np.asarray(b["center_world"], float),
             "extrinsic_not_inverted": (E @ np.append(b["center_vehicle"], 1.0))[:3],
         }
-        shifted = {"correct": {d: (S @ cw)[:3] for d, S in shifts.items()}}
+        shifted = {"correct": dict(zip(ds, (S @ cw)[:, :3]))}
         headings = {"camera_atan2_R10_R00": box.heading,
                     "vehicle_frame_yaw": math.degrees(b["heading_vehicle"]),
                     "world_yaw": math.degrees(b["heading_world"]),
@@ -250,6 +262,7 @@ def rope_view(rope, t: float, p: dict) -> FrameView:
     Wn = int(p["time_shift_frames"].get("Omni6DPose", 0))
     shifts = {d: inv(track.T[k + d]) for d in range(-Wn, Wn + 1)
               if d != 0 and 0 <= k + d < len(frames) and track.valid[k + d]}
+    ds, S = _stack(shifts)
     insts = []
     for b in rope.object_boxes(f):
         oid = str(b["oid"])
@@ -260,7 +273,7 @@ def rope_view(rope, t: float, p: dict) -> FrameView:
             "opengl_axes": box.center * np.array([1.0, -1.0, -1.0]),
             "first_camera_frame": wc.copy(),
         }
-        shifted = {"correct": {d: (S @ np.append(wc, 1.0))[:3] for d, S in shifts.items()}}
+        shifted = {"correct": dict(zip(ds, (S @ np.append(wc, 1.0))[:, :3]))}
         headings = {"camera_atan2_R10_R00": box.heading,
                     "camera_vertical_axis_yaw": math.degrees(math.atan2(box.R[0, 2], box.R[2, 2]))}
         ok, z = _seen(box, intr, "Omni6DPose", p)
