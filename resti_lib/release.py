@@ -22,6 +22,7 @@ from collections import Counter
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from . import LETTERS, TASKS, __version__
@@ -63,7 +64,19 @@ def collect(tasks_dir: Path, legacy: pd.DataFrame) -> tuple[list[dict], list[dic
                                    "video": str(r.get("Video")), "verdict": "excluded",
                                    "reasons": '["malformed_row"]', "defects": "[]"}]))
     provenance = pd.concat(prov, ignore_index=True) if prov else pd.DataFrame()
-    return accepted, excluded, provenance
+    del prov  # the task frames go before the legacy-order copy: one copy of the provenance at a time
+    return accepted, excluded, _in_legacy_order(provenance, legacy)
+
+
+def _in_legacy_order(provenance: pd.DataFrame, legacy: pd.DataFrame) -> pd.DataFrame:
+    """Provenance rows in the order of the legacy rows (the frame itself when already so)."""
+    if provenance.empty:
+        return provenance.reset_index(drop=True)
+    order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
+    o = provenance["key"].map(order).to_numpy(dtype=float, na_value=np.inf)
+    if (np.diff(o) >= 0).all():
+        return provenance.reset_index(drop=True)
+    return provenance.take(np.argsort(o, kind="stable")).reset_index(drop=True)
 
 
 def check_invariants(legacy: pd.DataFrame, accepted: list[dict], excluded: list[dict]) -> dict:
@@ -192,11 +205,11 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
         order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
         accepted = sorted(accepted, key=lambda r: order[r["Legacy Row Key"]])
         excluded = sorted(excluded, key=lambda r: order[r["key"]])
-        provenance = provenance.assign(_o=provenance["key"].map(order)).sort_values("_o").drop(columns="_o")
+        provenance = _in_legacy_order(provenance, legacy)
         st.write("resti.jsonl", jsonl_text(accepted).encode("utf-8"))
         st.write("resti.parquet", rows_to_parquet_bytes(accepted))
         st.write("excluded.jsonl", jsonl_text(excluded, sort_keys=True).encode("utf-8"))
-        st.write("provenance.parquet", _parquet_bytes(provenance.reset_index(drop=True)))
+        st.write("provenance.parquet", _parquet_bytes(provenance))
         validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]),
                                meta=release_meta(accepted, excluded, {}, context=context))
         if not validation["passed"]:
@@ -206,9 +219,25 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     return validation
 
 
+def _lean_arrow_pool() -> None:
+    """Assembly holds every task's provenance (arrow strings) and frees a copy of it at each step;
+    arrow's jemalloc pool hands freed pages back where its default pool keeps them (peak memory at
+    the 2,064-row x 10 structure: 519 MB against 672 MB). Kept when the user chose a pool
+    (``ARROW_DEFAULT_MEMORY_POOL``) or the build has no jemalloc."""
+    import pyarrow as pa
+
+    if os.environ.get("ARROW_DEFAULT_MEMORY_POOL"):
+        return
+    try:
+        pa.set_memory_pool(pa.jemalloc_memory_pool())
+    except (NotImplementedError, AttributeError):
+        pass
+
+
 def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path, *,
              context: dict | None = None) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
+    _lean_arrow_pool()
     legacy, _ = load_legacy(legacy_path, strict=False)
     accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
     return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir],
