@@ -41,7 +41,10 @@ if __name__ == "__main__":
     t0 = time.perf_counter()
     present = set(pd.read_parquet(params["legacy_benchmark"], columns=["Task"])["Task"])
     tasks = [t for t in TASKS if t in present]
-    # like the main job: one process per task, as many at once as there are cores
+    # like the main job: one process per task, as many at once as there are cores, the tasks that
+    # took longest before first (the main job orders a wave by its last run's stage seconds)
+    last = json.loads(sys.argv[2]) if len(sys.argv) > 2 else {}
+    tasks.sort(key=lambda t: -last.get(t, 0.0))
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1, max_tasks_per_child=1) as ex:
         per_task = list(ex.map(one, tasks, [params] * len(tasks)))
     t1 = time.perf_counter()
@@ -56,7 +59,8 @@ if __name__ == "__main__":
 """
 
 
-def run_scale(scale: int) -> dict:
+def run_scale(scale: int, last: dict | None = None) -> dict:
+    """One scale; ``last``: seconds per task of an earlier run, the longest started first."""
     import json
 
     from resti_lib.synth import generate
@@ -68,7 +72,8 @@ def run_scale(scale: int) -> dict:
         gen = time.perf_counter() - t0
         script = w / "_bench_child.py"
         script.write_text(CHILD)
-        r = subprocess.run([sys.executable, str(script), str(w)], capture_output=True, text=True)
+        r = subprocess.run([sys.executable, str(script), str(w), json.dumps(last or {})], capture_output=True,
+                           text=True)
         if r.returncode != 0:
             raise SystemExit(f"bench_scale: audit failed at scale {scale}:\n{r.stderr[-3000:]}")
         out = json.loads(r.stdout.strip().splitlines()[-1])
@@ -78,7 +83,9 @@ def run_scale(scale: int) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     scales = [int(x) for x in (argv or [])] or [1, 100]
-    res = [run_scale(s) for s in scales]
+    res = []
+    for s in scales:  # each scale's tasks ordered by the previous scale's seconds
+        res.append(run_scale(s, {t: v[0] for t, v in res[-1]["per_task"].items()} if res else None))
     print("scale    rows   generate   tasks   release   rows/s   peak MB   accepted/excluded")
     for r in res:
         print(f"{r['scale']:5d} {r['rows']:7d} {r['generate_s']:9.1f}s {r['tasks_s']:6.1f}s {r['release_s']:7.1f}s "

@@ -332,6 +332,7 @@ def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float) -> i
                 (todo if reason else skipped).append(n)
             if not todo:
                 continue
+            todo = longest_first(todo, planner.state)
             if bar is None:
                 bar = tqdm(total=len(todo), desc="notebooks", unit="nb", file=sys.stderr)
             else:
@@ -430,6 +431,14 @@ def _rel_to_cwd(p: Path) -> str:
         return os.path.relpath(p)
     except ValueError:
         return str(p)
+
+
+def longest_first(todo: list[str], state) -> list[str]:
+    """A wave's stages, the ones that took longest when last run first (list scheduling: a long
+    stage started last would hold the wave open alone); stages never run keep their params order,
+    ahead of the rest."""
+    last = {n: (state.stages.get(n) or {}).get("seconds") for n in todo}
+    return sorted(todo, key=lambda n: (last[n] is not None, -(last[n] or 0.0)))
 
 
 def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: float, index: Path) -> str:

@@ -152,3 +152,27 @@ def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, mon
     assert run() == {"05_displacement"}  # rewritten identically: nothing downstream changes
     assert run(force=True) == set(every)
     assert run(only=["90_reoption_release"]) == {"90_reoption_release"}  # on demand, needs nothing
+
+
+def test_a_wave_starts_its_longest_stages_first(tmp_path):
+    """Two workers, stages of 1, 4, 5 and 9 s last time: in params order the 9 s stage starts last,
+    at 4 s, and the wave lasts 13 s; longest first it lasts 10 s (9 | 5 + 4, then 1). Stages never
+    run go first, in params order."""
+    from resti_lib.pipeline import longest_first
+    from resti_lib.stages import State
+
+    st = State(tmp_path)
+    for n, s in {"a": 1.0, "b": 4.0, "c": 5.0, "d": 9.0}.items():
+        st.stages[n] = {"seconds": s}
+    order = longest_first(["a", "b", "new2", "c", "d", "new1"], st)
+    assert order == ["new2", "new1", "d", "c", "b", "a"]
+
+    def makespan(names, workers=2):  # list scheduling, by hand
+        free = [0.0] * workers
+        for n in names:
+            k = free.index(min(free))
+            free[k] += st.stages[n]["seconds"]
+        return max(free)
+
+    assert makespan(["a", "b", "c", "d"]) == 13.0
+    assert makespan(longest_first(["a", "b", "c", "d"], st)) == 10.0
