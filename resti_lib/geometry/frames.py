@@ -15,6 +15,8 @@ Conventions (see ``docs/design.md``)
 
 from __future__ import annotations
 
+import math
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +34,11 @@ __all__ = [
     "invert_T",
     "make_T",
     "matrix_to_quat_wxyz",
+    "nearest_rotation",
     "opencv_cam_pose_to_waymo",
     "opencv_to_waymo_points",
     "quat_wxyz_to_matrix",
+    "rotation_angle_deg",
     "waymo_cam_pose_to_opencv",
     "waymo_to_opencv_points",
     "yaw_matrix",
@@ -212,6 +216,37 @@ def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
     wxyz = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1)
     wxyz *= np.where(wxyz[:, :1] < 0, -1.0, 1.0)
     return wxyz[0] if R.ndim == 2 else wxyz.reshape(R.shape[:-2] + (4,))
+
+
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation matrix nearest (Frobenius) to ``R``: ``U V^T`` of its SVD, the sign fixed so that
+    the determinant is +1. A printed matrix rounded to two decimals is not orthonormal."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, dtype=np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def rotation_angle_deg(R0: np.ndarray, R1: np.ndarray) -> float:
+    """Angle of the relative rotation ``R0^T R1`` in degrees, both first projected onto SO(3)
+    (:func:`nearest_rotation`): two matrices that agree to rounding give about 0 degrees, not the
+    arccos of a trace pushed off 3 by non-orthonormal entries. The angle is ``atan2`` of the
+    rotation's sine and cosine, accurate near 0 and 180 degrees alike."""
+    M = _nearest_printed(R0).T @ _nearest_printed(R1)
+    sin = 0.5 * math.hypot(M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1])
+    cos = 0.5 * (M[0, 0] + M[1, 1] + M[2, 2] - 1.0)
+    return math.degrees(math.atan2(sin, cos))
+
+
+def _nearest_printed(R) -> np.ndarray:
+    # candidates meet in every pair of a row, so each printed matrix is projected once
+    return _nearest_of(tuple(np.asarray(R, dtype=np.float64).ravel().tolist()))
+
+
+@lru_cache(maxsize=4096)
+def _nearest_of(flat: tuple) -> np.ndarray:
+    out = nearest_rotation(np.array(flat, dtype=np.float64).reshape(3, 3))
+    out.flags.writeable = False
+    return out
 
 
 def yaw_matrix(theta: float | np.ndarray) -> np.ndarray:

@@ -57,6 +57,7 @@ from scipy.stats import binom
 
 from .. import LETTERS, SOURCES, TASKS
 from .. import values as V
+from ..geometry.frames import nearest_rotation
 from .checks import ParsedRow, parse_row
 
 CHANCE = 1.0 / 5.0
@@ -249,12 +250,6 @@ def _rot_angle(A, B) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def _project_so3(M: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
 def _fields(p: ParsedRow) -> dict | None:
     """Named field groups of structured answers (grounding box / pose)."""
     vals = p.values
@@ -425,7 +420,7 @@ def _group_attack(group: str, how: str):
         vecs = f[group]
         if group == "rotation":
             if how == "centroid":
-                M = _project_so3(np.mean([vecs[k] for k in sorted(vecs)], axis=0))
+                M = nearest_rotation(np.mean([vecs[k] for k in sorted(vecs)], axis=0))
                 return top({k: -_rot_angle(R, M) for k, R in vecs.items()})
             return _medoid(vecs, dist=_rot_angle)
         if how == "centroid":

@@ -45,10 +45,10 @@ import pandas as pd
 
 from .. import LETTERS, SOURCES, TASKS
 from .. import values as V
+from ..geometry.frames import nearest_rotation
 from .attacks import (
     ATTACKS,
     Batch,
-    _project_so3,
     _rot_angle,
     attack,
     make_batch,
@@ -101,7 +101,7 @@ def _summaries(p: ParsedRow) -> np.ndarray:
                           float(d.sum()), float(np.linalg.norm(c))]
         elif isinstance(v, V.Pose):
             t, R = np.array(v.t), np.array(v.R)
-            ang = math.degrees(_rot_angle(np.eye(3), _project_so3(R)))
+            ang = math.degrees(_rot_angle(np.eye(3), nearest_rotation(R)))
             out[i, :9] = [*t, float(np.linalg.norm(t)), ang, *R[2], float(np.trace(R))]
     return out
 
@@ -194,7 +194,7 @@ def _group_stats(p: ParsedRow) -> np.ndarray:
         col += 2
     col = 4
     if rot is not None:
-        M = _project_so3(np.mean(rot, axis=0))
+        M = nearest_rotation(np.mean(rot, axis=0))
         D = np.array([[_rot_angle(a, b) for b in rot] for a in rot])
         s = D.sum() / 20 or 1.0
         out[:, col] = np.array([_rot_angle(R, M) for R in rot]) / s

@@ -22,6 +22,7 @@ import numpy as np
 from .. import SOURCES, defaults
 from .. import values as V
 from ..errors import InputError
+from ..geometry.frames import rotation_angle_deg
 from .observables import Observables, observables_of
 
 OPTION_PARAMS = "params/options.yaml"
@@ -231,27 +232,6 @@ def pose_separation(a: V.Pose, b: V.Pose, floors: dict) -> float:
     dt = float(np.linalg.norm(np.asarray(a.t, float) - np.asarray(b.t, float)))
     parts = [dt / ft if ft > 0 else math.inf, rotation_angle_deg(a.R, b.R) / fr if fr > 0 else math.inf]
     return float(max(parts))
-
-
-def rotation_angle_deg(Ra, Rb) -> float:
-    """Angle of the relative rotation, robust to slightly non-orthonormal (printed) matrices."""
-    Ra, Rb = _so3(Ra), _so3(Rb)
-    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
-def _so3(R) -> np.ndarray:
-    """The nearest rotation (read-only: a row's candidates meet in every pair, so each printed
-    matrix is projected once)."""
-    return _so3_of(tuple(np.asarray(R, float).ravel().tolist()))
-
-
-@lru_cache(maxsize=4096)
-def _so3_of(flat: tuple) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(np.array(flat, dtype=float).reshape(3, 3))
-    out = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    out.flags.writeable = False
-    return out
 
 
 __all__ = ["OptionSpec", "Rule", "spec_of", "load_option_params", "task_rule", "kind_of", "per_source",

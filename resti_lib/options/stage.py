@@ -50,6 +50,7 @@ from scipy.spatial.transform import Rotation
 from .. import LETTERS
 from .. import values as V
 from ..errors import InputError, OptionError
+from ..geometry.frames import nearest_rotation
 from ..rng import row_rng, stable_seed
 from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
 from .spec import (
@@ -117,11 +118,6 @@ def _slot_rows(carriers: list[str], others: list[str], ratio: float, *, seed: in
 
 # ------------------------------------------------------------------------------ geometry helpers
 
-def so3(R) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-
-
 def rot(axis, deg: float) -> np.ndarray:
     a = np.asarray(axis, float)
     return Rotation.from_rotvec(a / np.linalg.norm(a) * np.radians(deg)).as_matrix()
@@ -133,7 +129,7 @@ def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accep
     takes, e.g. its printed heading): every field a perturbation leaves alone then prints exactly
     as in the answer."""
     P = np.asarray(printed, float)
-    R = so3(P)
+    R = nearest_rotation(P)
 
     def ok(Q):
         return np.array_equal(np.round(Q, decimals), np.round(P, decimals)) and (accept is None or accept(Q))
@@ -785,7 +781,7 @@ class Stage:
             info["win"][p.rid] = win
             scale = win if rate else 1.0
             if o.premise is not None and o.premise_text is not None:
-                Rp, tp = so3(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
+                Rp, tp = nearest_rotation(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
                 Hf = horizontal_frame(Rp, up, 2)
             else:  # relative poses: the reference camera is the identity
                 Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)

@@ -39,7 +39,6 @@ from typing import ClassVar
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
 
 from .. import values as V
 from ..adjudicate import Diagnosis, Rule, same_quantity_agrees
@@ -47,7 +46,7 @@ from ..contract import NUM, Contract, base_contract, find_pose_json
 from ..errors import ContractError, InputError
 from ..figures import save_figure
 from ..geometry import trajectory as G
-from ..geometry.frames import invert_T
+from ..geometry.frames import invert_T, nearest_rotation, rotation_angle_deg
 from ..geometry.trajectory import PoseTrack
 from ..measure.motion import sample_window
 from . import register_task
@@ -79,22 +78,6 @@ def _as_pose(T: np.ndarray, decimals: int) -> V.Pose:
     """An unrounded :class:`resti_lib.values.Pose` for comparisons (printed precision ``decimals``)."""
     T = np.asarray(T, float)
     return V.Pose(t=tuple(T[:3, 3]), R=tuple(tuple(r) for r in T[:3, :3]), text="", decimals=decimals)
-
-
-def nearest_rotation(R: np.ndarray) -> np.ndarray:
-    """The rotation matrix nearest (Frobenius) to ``R``: ``U V^T`` of its SVD, the sign fixed so that
-    the determinant is +1. A printed matrix rounded to two decimals is not orthonormal."""
-    U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
-
-
-def rotation_angle_deg(R0: np.ndarray, R1: np.ndarray) -> float:
-    """Angle of the relative rotation ``R0^T R1`` in degrees, both first projected onto SO(3)
-    (:func:`nearest_rotation`): two matrices that agree to rounding give about 0 degrees, not the
-    arccos of a trace pushed off 3 by non-orthonormal entries."""
-    rel = Rotation.from_matrix(nearest_rotation(R0)).inv() * Rotation.from_matrix(nearest_rotation(R1))
-    return float(np.degrees(rel.magnitude()))
 
 
 # ------------------------------------------------------------------------------------ diagnosis
