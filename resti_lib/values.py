@@ -26,6 +26,7 @@ import json
 import math
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Union
 
 import numpy as np
@@ -328,7 +329,20 @@ def parse(text: object, *, file=None, row=None, field=None) -> Value:
     file, row, field:
         Where the string came from; named in the error if it cannot be parsed.
     """
-    where = {"file": file, "row": row, "field": field}
+    if isinstance(text, str):  # values are immutable: a string read before is not parsed again
+        try:
+            return _parse_text(text)
+        except InputError:
+            pass  # parsed again below, for an error that names where the string came from
+    return _parse(text, {"file": file, "row": row, "field": field})
+
+
+@lru_cache(maxsize=1 << 16)
+def _parse_text(text: str) -> Value:
+    return _parse(text, {"file": None, "row": None, "field": None})
+
+
+def _parse(text: object, where: dict) -> Value:
     if text is None or (isinstance(text, float) and math.isnan(text)):
         raise _err("value is missing (null)", where)
     if not isinstance(text, str):
