@@ -32,11 +32,13 @@ report: $(STAMP)  ## main job: reruns the stages that changed (FORCE=1: all) -> 
 reoption: $(STAMP)  ## rebuild the options of the public ReSTI v5 release (notebook 90) and re-index the report
 	@$(BIN)/resti run --params $(PARAMS) --only 90_reoption_release $(RUN_FLAGS)
 
+# tests run on every core; the tests of the shared main-job run stay on one worker (conftest.py)
+TEST_JOBS ?= auto
 test: $(STAMP) browser  ## the full test suite, as CI runs it (real data: ../shared or RESTI_SHARED; installs chromium if it can)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
 
 test-fast: $(STAMP)  ## the edit loop: every test but notebooks, the main job and real-data checks (make test runs all)
-	$(BIN)/python -m pytest -q -x -m "not notebook and not slow and not shared"
+	$(BIN)/python -m pytest -q -x -n $(TEST_JOBS) --dist loadgroup -m "not notebook and not slow and not shared"
 
 bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, make report cold/warm/one task
 	$(BIN)/python -m bench

@@ -106,7 +106,9 @@ def main_run(miniworld, tmp_path_factory) -> MainRun:
 
 
 def pytest_collection_modifyitems(config, items):
-    """Tests that read the shared main-job run (``main_run``) are slow: ``make test-fast`` leaves them out."""
+    """Tests that read the shared main-job run (``main_run``) are slow: ``make test-fast`` leaves them
+    out. With parallel workers they stay on one worker (one group), so the main job runs once."""
     for item in items:
         if "main_run" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
+            item.add_marker(pytest.mark.xdist_group("main_run"))
