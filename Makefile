@@ -38,7 +38,7 @@ test: $(STAMP) browser  ## the full test suite, as CI runs it (real data: ../sha
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
 
 test-fast: $(STAMP)  ## the edit loop: every test but notebooks, the main job and real-data checks (make test runs all)
-	$(BIN)/python -m pytest -q -x -n $(TEST_JOBS) --dist loadgroup -m "not notebook and not slow and not shared"
+	$(BIN)/python -m pytest -q -x -n $(TEST_JOBS) --dist worksteal -m "not notebook and not slow and not shared"
 
 bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, make report cold/warm/one task
 	$(BIN)/python -m bench

@@ -33,6 +33,7 @@ def clean():
     return attack_table(release_rows(None, seed=0), families="all", learned=FAST_LEARNED)
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_clean_control_has_no_false_alarm(clean):
     assert set(clean["family"]) == set(FAMILIES)  # every family ran
     assert not clean["significant"].any(), clean[clean["significant"]]

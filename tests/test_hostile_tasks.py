@@ -40,6 +40,7 @@ def test_new_codes_are_in_the_vocabulary():
         assert code in DEFECTS and code in REASONS and DEFECTS[code].layer == "question"
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_scannet_pose_invalid_at_t0_is_an_exclusion(miniworld, tmp_path):
     """Real ScanNet often has failed tracking (-inf poses) on the first frames. Pose rows asking the
     pose at t = 0 are excluded like in the other tasks; the other rows keep their verdict."""

@@ -253,6 +253,7 @@ def _old_world(w: Path) -> Path:
     return w
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_generate_never_leaves_half_a_world(tmp_path, monkeypatch):
     from resti_lib import synth
 

@@ -64,6 +64,7 @@ def _hashes(root: Path) -> dict[str, str]:
 # ====================================================================== determinism and budget
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_two_generations_are_byte_identical(world, tmp_path):
     generate(tmp_path, seed=0)
     assert _hashes(world[0]) == _hashes(tmp_path)
@@ -741,6 +742,7 @@ def test_omni_pose_truth_by_hand(world, manifest, info):
 # ===================================================================================== scale
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_scale_mirrors_the_legacy_structure(tmp_path, resti_v5_dir):
     keys = []
     for f, field in (("resti.jsonl", "Legacy Row Key"), ("excluded.jsonl", "key")):
@@ -767,6 +769,7 @@ def test_scale_mirrors_the_legacy_structure(tmp_path, resti_v5_dir):
     assert problems == [] and min(seen.values()) >= 20
 
 
+@pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_scale_fallback_without_release(tmp_path, world):
     """Without resti_v5 the structure comes from the per-task counts of the format notes."""
     summary = generate(tmp_path, seed=3, scale=1, resti_v5_dir=tmp_path / "absent")
