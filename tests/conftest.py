@@ -38,13 +38,19 @@ def real_samples() -> Path:
 
 
 @pytest.fixture(scope="session")
-def miniworld(tmp_path_factory) -> Path:
-    """The default mini-world (seed 0), generated once per session into a temporary folder."""
+def miniworld_generated(tmp_path_factory) -> tuple[Path, dict]:
+    """The default mini-world (seed 0), generated once per session into a temporary folder, with the
+    summary the generator returned. Read-only: tests that change a world copy it first."""
     from resti_lib.synth import generate
 
     out = tmp_path_factory.mktemp("miniworld")
-    generate(out, seed=0)
-    return out
+    return out, generate(out, seed=0)
+
+
+@pytest.fixture(scope="session")
+def miniworld(miniworld_generated) -> Path:
+    """The default mini-world's folder (:func:`miniworld_generated`)."""
+    return miniworld_generated[0]
 
 
 
