@@ -66,7 +66,7 @@ def load_option_params(overrides: dict | None = None) -> dict:
     unknown = sorted(set(overrides or {}) - set(base))
     if unknown:
         raise InputError(f"unknown option parameter group(s) {unknown}; known: {sorted(base)}", file=OPTION_PARAMS)
-    return _merge(base, overrides)
+    return _merge(base, overrides) if overrides else base  # base is already a copy
 
 
 def per_source(table, source: str, default=None):

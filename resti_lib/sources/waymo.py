@@ -478,30 +478,29 @@ class WaymoSegment:
         (rad), ``size`` (length, width, height), ``T_world_from_box``, ``center_world``,
         ``heading_world`` (rad, yaw of box +X in the world), ``speed``/``accel`` (vehicle frame).
         """
-        t_frame = self.nearest_box_frame(t)
-        if t_frame is None:
-            return []
-        if abs(t_frame - t) > tol:
-            raise InputError(f"no box frame within {tol} s of t={t} (nearest {t_frame:.6f} s)",
-                             file=self.path("lidar_box"), field=KEY_MICROS)
-        a = self._box_arrays
-        k = int(np.searchsorted(self.box_frame_times, t_frame))
-        return [self._box_dict(i) for i in a["order"][a["starts"][k]:a["starts"][k + 1]]]
+        return [self._box_dict(i) for i in self._frame_rows(t, tol)]
 
     def box_at(self, t: float, laser_object_id: str, *, tol: float = 1e-3) -> dict | None:
         """The box of one object in the frame at segment time ``t`` (as :meth:`boxes_at`), None when
         the frame has no box of that object."""
+        rows = self._frame_rows(t, tol)
+        if rows.size == 0:
+            return None
+        hit = rows[self._box_arrays["id"][rows] == str(laser_object_id)]
+        return self._box_dict(int(hit[-1])) if hit.size else None  # the last, as a dict by id keeps it
+
+    def _frame_rows(self, t: float, tol: float) -> np.ndarray:
+        """Box-table rows of the frame nearest ``t`` (file order); none when the segment has no box,
+        an InputError when that frame is more than ``tol`` seconds away."""
         t_frame = self.nearest_box_frame(t)
         if t_frame is None:
-            return None
+            return np.zeros(0, dtype=np.int64)
         if abs(t_frame - t) > tol:
             raise InputError(f"no box frame within {tol} s of t={t} (nearest {t_frame:.6f} s)",
                              file=self.path("lidar_box"), field=KEY_MICROS)
         a = self._box_arrays
         k = int(np.searchsorted(self.box_frame_times, t_frame))
-        rows = a["order"][a["starts"][k]:a["starts"][k + 1]]
-        hit = rows[a["id"][rows] == str(laser_object_id)]
-        return self._box_dict(int(hit[-1])) if hit.size else None  # the last, as a dict by id keeps it
+        return a["order"][a["starts"][k]:a["starts"][k + 1]]
 
     def _box_dict(self, i: int) -> dict:
         a = self._box_arrays
