@@ -54,6 +54,51 @@ def miniworld(miniworld_generated) -> Path:
 
 
 
+def _tree_stat(root: Path) -> dict:
+    out = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        if not p.is_dir() and p.name != ".generator_stamp":
+            out[str(p.relative_to(root))] = (st.st_size, st.st_mtime_ns)
+    return out
+
+
+def _link_world(src: Path, dst: Path, owned: list[tuple[str, ...]]) -> None:
+    """``dst`` mirrors ``src``: entries on the way to an owned path are real folders, owned paths are
+    copies, everything else is one link (a whole folder or a file)."""
+    import shutil
+
+    dst.mkdir(parents=True, exist_ok=True)
+    for child in sorted(src.iterdir()):
+        inner = [o[1:] for o in owned if o[0] == child.name]
+        if not inner:
+            (dst / child.name).symlink_to(child, target_is_directory=child.is_dir())
+        elif any(not o for o in inner):  # owned whole
+            (shutil.copytree if child.is_dir() else shutil.copy2)(child, dst / child.name)
+        else:
+            _link_world(child, dst / child.name, inner)
+
+
+@pytest.fixture
+def world_with(miniworld, tmp_path):
+    """``world_with(*own)``: a mini-world to damage without copying it (its 7,000 files cost seconds to
+    copy). ``own`` names the paths (files or folders, relative to the world) the test will change: they
+    are real copies; the rest are links to the session world. The readers under test never walk a tree
+    recursively, so linked folders read as real ones. After the test the session world must be unchanged:
+    a test that wrote through a link (a path it did not own) fails here."""
+    before = _tree_stat(miniworld)
+
+    def make(*own) -> Path:
+        owned = [Path(o).parts for o in own]
+        missing = [str(o) for o in own if not (miniworld / o).exists()]
+        assert not missing, f"not in the mini-world: {missing}"
+        _link_world(miniworld, tmp_path / "w", owned)
+        return tmp_path / "w"
+
+    yield make
+    assert _tree_stat(miniworld) == before, "a test changed the session mini-world through a link"
+
+
 # ------------------------------------------------------------------ the main job, run once per session
 
 SOURCE_DATE_EPOCH = "1700000000"  # 2023-11-14T22:13:20Z: reruns with it set are byte-identical

@@ -257,3 +257,25 @@ def test_nearest_questions_match_brute_force():
     for i, s in enumerate(sets):
         sims = sorted(((len(s & t) / len(s | t), -j) for j, t in enumerate(sets) if j != i), reverse=True)[:5]
         assert got[i] == [-x[1] for x in sims]
+
+
+def test_printed_in_agrees_with_a_boundary_regex():
+    """The cross-row reader's verbatim match (a scan) against the regex it stands for, on random strings
+    drawn from an alphabet of digits, points, signs and brackets, so boundaries are hit often."""
+    import random
+    import re
+
+    from resti_lib.options.readers import _printed_in
+
+    rnd = random.Random(7)
+    alphabet = "012.-(m"
+    hits = 0
+    for _ in range(4000):
+        s = "".join(rnd.choice(alphabet) for _ in range(rnd.randint(1, 4)))
+        text = "".join(rnd.choice(alphabet) for _ in range(rnd.randint(0, 30)))
+        expect = re.search(r"(?<![\d.])" + re.escape(s) + r"(?!\d)", text) is not None
+        assert _printed_in(s, text) == expect, (s, text)
+        hits += expect
+    assert 400 < hits < 3600  # both outcomes are exercised
+    assert _printed_in("1.25", "moved1.25m") and not _printed_in("1.25", "moved11.25m")
+    assert not _printed_in("1.25", "1.250m") and _printed_in("1.25", "at1.25.")

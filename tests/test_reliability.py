@@ -3,7 +3,6 @@ never a partial release."""
 
 import json
 import os
-import shutil
 
 import pandas as pd
 import pyarrow.parquet as pq
@@ -21,14 +20,8 @@ def _params(w, out):
             "video_map": "", "seed": 0, "output_dir": str(out)}
 
 
-@pytest.fixture
-def world(miniworld, tmp_path):
-    w = tmp_path / "w"
-    shutil.copytree(miniworld, w)
-    return w
-
-
-def test_malformed_legacy_rows_are_excluded_with_a_reason(world, tmp_path):
+def test_malformed_legacy_rows_are_excluded_with_a_reason(world_with, tmp_path):
+    world = world_with("legacy")
     qa = world / "legacy" / "qa.parquet"
     df = pd.read_parquet(qa)
     n = len(df)
@@ -64,8 +57,10 @@ def test_malformed_legacy_rows_are_excluded_with_a_reason(world, tmp_path):
         assert rec["verification_evidence"]["field"] == field
 
 
-def test_truncated_sens_is_one_clear_error(world, tmp_path):
-    sens = sorted((world / "scannet" / "scans").glob("*/*.sens"))[0]
+def test_truncated_sens_is_one_clear_error(miniworld, world_with, tmp_path):
+    rel = sorted((miniworld / "scannet" / "scans").glob("*/*.sens"))[0].relative_to(miniworld)
+    world = world_with(rel)
+    sens = world / rel
     os.truncate(sens, sens.stat().st_size // 2)
     params = _params(world, tmp_path / "out")
     for task in ("3D Video Grounding", "Ego-Centric Orientation", "Pose Estimation"):
@@ -75,8 +70,10 @@ def test_truncated_sens_is_one_clear_error(world, tmp_path):
     assert not (tmp_path / "out" / "release").exists()
 
 
-def test_waymo_parquet_missing_a_column(world, tmp_path):
-    p = sorted((world / "waymo" / "vehicle_pose").glob("*.parquet"))[0]
+def test_waymo_parquet_missing_a_column(miniworld, world_with, tmp_path):
+    rel = sorted((miniworld / "waymo" / "vehicle_pose").glob("*.parquet"))[0].relative_to(miniworld)
+    world = world_with(rel)
+    p = world / rel
     t = pq.read_table(p)
     pq.write_table(t.drop(["[VehiclePoseComponent].world_from_vehicle.transform"]), p)
     with pytest.raises(InputError) as e:
@@ -84,9 +81,11 @@ def test_waymo_parquet_missing_a_column(world, tmp_path):
     assert e.value.file == str(p) and "world_from_vehicle" in e.value.field
 
 
-def test_rope_zero_norm_quaternion(world, tmp_path):
-    scene = sorted((world / "omni6d" / "ROPE").iterdir())[0]
-    meta = sorted(scene.glob("*_meta.json"))[0]
+def test_rope_zero_norm_quaternion(miniworld, world_with, tmp_path):
+    scene = sorted((miniworld / "omni6d" / "ROPE").iterdir())[0]
+    rel = sorted(scene.glob("*_meta.json"))[0].relative_to(miniworld)
+    world = world_with(rel)
+    meta = world / rel
     m = json.loads(meta.read_text())
     m["camera"]["quaternion"] = [0.0, 0.0, 0.0, 0.0]
     meta.write_text(json.dumps(m))

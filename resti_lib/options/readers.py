@@ -360,6 +360,18 @@ def _flat(s: str) -> str:
     return "".join(str(s).split())
 
 
+def _printed_in(s: str, text: str) -> bool:
+    """``s`` occurs in ``text`` as a whole number: no digit or point before it, no digit after it."""
+    at = text.find(s)
+    while at >= 0:
+        end = at + len(s)
+        if (at == 0 or not (text[at - 1].isdecimal() or text[at - 1] == ".")) and not (
+                end < len(text) and text[end].isdecimal()):
+            return True
+        at = text.find(s, at + 1)
+    return False
+
+
 def _sequence_groups(batch: Batch) -> dict:
     return batch.groups(lambda i: batch.obs[i].sequence, "sequence")
 
@@ -387,15 +399,11 @@ def _xrow_question(batch: Batch):
             premise_keys.append(V.parse(o.premise_text).key() if o.premise_text else None)
         except InputError:
             premise_keys.append(None)
-    pats: dict = {}
-
     def count(i, k, others):
         p = batch.rows[i]
         s = _flat(p.candidates[k])
-        if s not in pats:
-            pats[s] = re.compile(r"(?<![\d.])" + re.escape(s) + r"(?!\d)")
         key = p.values[k].key()
-        return sum(1 for j in others if pats[s].search(flat_q[j]) or (premise_keys[j] is not None
+        return sum(1 for j in others if _printed_in(s, flat_q[j]) or (premise_keys[j] is not None
                                                                      and premise_keys[j] == key))
     return directional(batch, _xrow_scores(batch, count))
 
