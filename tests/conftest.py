@@ -40,11 +40,24 @@ def real_samples() -> Path:
 @pytest.fixture(scope="session")
 def miniworld_generated(tmp_path_factory) -> tuple[Path, dict]:
     """The default mini-world (seed 0), generated once per session into a temporary folder, with the
-    summary the generator returned. Read-only: tests that change a world copy it first."""
+    summary the generator returned. Under several workers the first one generates it, under a lock, and
+    the others read it. Read-only: tests that change a world use :func:`world_with`."""
+    import fcntl
+    import json
+
     from resti_lib.synth import generate
 
-    out = tmp_path_factory.mktemp("miniworld")
-    return out, generate(out, seed=0)
+    if not os.environ.get("PYTEST_XDIST_WORKER"):  # one process
+        out = tmp_path_factory.mktemp("miniworld")
+        return out, generate(out, seed=0)
+    root = tmp_path_factory.getbasetemp().parent  # shared by the session's workers
+    out, done = root / "miniworld", root / "miniworld.summary.json"
+    with open(root / "miniworld.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            summary = generate(out, seed=0)
+            done.write_text(json.dumps(summary))
+    return out, json.loads(done.read_text())
 
 
 @pytest.fixture(scope="session")

@@ -4,13 +4,12 @@ by name, with the failing rows."""
 import json
 import re
 import shutil
-import subprocess
-import sys
 from collections import Counter
 
 import numpy as np
 import pytest
 
+from resti_lib.cli import main as cli_main
 from resti_lib.verify import verify_path
 
 
@@ -151,16 +150,17 @@ def test_rotation_tolerance_matches_rounding():
     del rng
 
 
-def test_cli_verify_json_exit_codes(v5_copy):
+def test_cli_verify_json_exit_codes(v5_copy, capsys):
+    """``resti verify`` in-process (the entry point's own process is checked in test_cli)."""
     dst, rows = v5_copy
-    ok = subprocess.run([sys.executable, "-m", "resti_lib.cli", "verify", str(dst), "--json"],
-                        capture_output=True, text=True)
-    out = json.loads(ok.stdout)
+    code = cli_main(["verify", str(dst), "--json"])
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
     failing = {k for k, c in out["checks"].items() if c["status"] == "fail"}
-    assert ok.returncode == 1 and failing == {"separation", "plausible_given_question"}, ok.stderr
+    assert code == 1 and failing == {"separation", "plausible_given_question"}, cap.err
     assert {"accepted_rows", "excluded_rows", "by_task", "by_source", "answer_letters", "checks"} <= set(out)
     rows[0]["Candidates"]["A"] = rows[0]["Candidates"]["B"]
     _write(dst, rows)
-    bad = subprocess.run([sys.executable, "-m", "resti_lib.cli", "verify", str(dst)], capture_output=True,
-                         text=True)
-    assert bad.returncode == 1 and "FAIL" in bad.stdout and rows[0]["ReSTI ID"] in bad.stdout
+    code = cli_main(["verify", str(dst)])
+    text = capsys.readouterr().out
+    assert code == 1 and "FAIL" in text and rows[0]["ReSTI ID"] in text
