@@ -37,7 +37,7 @@ TEST_JOBS ?= auto
 test: $(STAMP) browser  ## the full test suite, as CI runs it (real data: ../shared or RESTI_SHARED; installs chromium if it can)
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
 
-test-fast: $(STAMP)  ## the edit loop: every test but notebooks, the main job and real-data checks (make test runs all)
+test-fast: $(STAMP)  ## the edit loop: every test but notebooks, the main job, long checks on the real data and end-to-end checks over 3 s (make test runs all)
 	$(BIN)/python -m pytest -q -x -n $(TEST_JOBS) --dist worksteal -m "not notebook and not slow and not shared"
 
 bench: $(STAMP)  ## speed benchmarks (ratios and throughput): answer interface, sources, make report cold/warm/one task
