@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -42,22 +43,15 @@ def miniworld_generated(tmp_path_factory) -> tuple[Path, dict]:
     """The default mini-world (seed 0), generated once per session into a temporary folder, with the
     summary the generator returned. Under several workers the first one generates it, under a lock, and
     the others read it. Read-only: tests that change a world use :func:`world_with`."""
-    import fcntl
     import json
 
     from resti_lib.synth import generate
 
-    if not os.environ.get("PYTEST_XDIST_WORKER"):  # one process
-        out = tmp_path_factory.mktemp("miniworld")
-        return out, generate(out, seed=0)
-    root = tmp_path_factory.getbasetemp().parent  # shared by the session's workers
-    out, done = root / "miniworld", root / "miniworld.summary.json"
-    with open(root / "miniworld.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not done.exists():
-            summary = generate(out, seed=0)
-            done.write_text(json.dumps(summary))
-    return out, json.loads(done.read_text())
+    with _once_per_session(tmp_path_factory, "miniworld") as (out, make):
+        summary = out.parent / f"{out.name}.summary.json"
+        if make:
+            summary.write_text(json.dumps(generate(out, seed=0)))
+        return out, json.loads(summary.read_text())
 
 
 @pytest.fixture(scope="session")
@@ -145,30 +139,55 @@ def run_cli(args: list[str], *, umask: int | None = None, cwd=None, env: dict | 
 
 
 class MainRun:
-    def __init__(self, out: Path, params: Path, cfg: dict, proc):
+    def __init__(self, out: Path, params: Path, cfg: dict, returncode: int, stdout: str, stderr: str):
         self.out, self.params, self.cfg = out, params, cfg
-        self.returncode, self.stdout, self.stderr = proc.returncode, proc.stdout, proc.stderr
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+@contextmanager
+def _once_per_session(tmp_path_factory, name: str):
+    """Yields the folder for ``name`` and whether this process must make it: the first process of the
+    session (one worker, under a lock) makes it, the others wait for it and read it."""
+    import fcntl
+
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield tmp_path_factory.mktemp(name), True
+        return
+    root = tmp_path_factory.getbasetemp().parent  # shared by the session's workers
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        made = root / f"{name}.done"
+        yield root / name, not made.exists()
+        made.touch()
 
 
 @pytest.fixture(scope="session")
 def main_run(miniworld, tmp_path_factory) -> MainRun:
     """``resti run`` on the default mini-world, once per session (a subprocess under umask 002, with
-    SOURCE_DATE_EPOCH set): the tests of the main job, the report and the browser share it."""
+    SOURCE_DATE_EPOCH set): the tests of the main job, the report and the browser share it. Its tests
+    are one xdist group (one worker); should grouping fail, the other workers wait for the one run."""
+    import json
+
     import yaml
 
     from resti_lib.pipeline import _generator_stamp
 
-    (miniworld / ".generator_stamp").write_text(_generator_stamp(0))  # the fixture made it: no regeneration
-    base = tmp_path_factory.mktemp("main_run")
-    out = base / "outputs"
-    cfg = main_params(miniworld, out)
-    params = base / "params.yaml"
-    params.write_text(yaml.safe_dump(cfg))
-    proc = run_cli(["run", "--params", str(params)], umask=MAIN_RUN_UMASK)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return MainRun(out, params, cfg, proc)
+    with _once_per_session(tmp_path_factory, "main_run") as (base, make):
+        out, params, record = base / "outputs", base / "params.yaml", base / "run.json"
+        cfg = main_params(miniworld, out)
+        if make:
+            (miniworld / ".generator_stamp").write_text(_generator_stamp(0))  # the fixture made it
+            base.mkdir(parents=True, exist_ok=True)
+            params.write_text(yaml.safe_dump(cfg))
+            proc = run_cli(["run", "--params", str(params)], umask=MAIN_RUN_UMASK)
+            record.write_text(json.dumps({"returncode": proc.returncode, "stdout": proc.stdout,
+                                          "stderr": proc.stderr}))
+        run = json.loads(record.read_text())
+    assert run["returncode"] == 0, run["stderr"][-3000:]
+    return MainRun(out, params, cfg, run["returncode"], run["stdout"], run["stderr"])
 
 
+@pytest.hookimpl(tryfirst=True)  # before the workers read xdist_group to group node ids
 def pytest_collection_modifyitems(config, items):
     """Tests that read the shared main-job run (``main_run``) are slow: ``make test-fast`` leaves them
     out. With parallel workers they stay on one worker (one group), so the main job runs once."""
@@ -176,3 +195,4 @@ def pytest_collection_modifyitems(config, items):
         if "main_run" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.xdist_group("main_run"))
+
