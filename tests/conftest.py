@@ -60,7 +60,6 @@ def miniworld(miniworld_generated) -> Path:
     return miniworld_generated[0]
 
 
-
 def _tree_stat(root: Path) -> dict:
     out = {}
     for p in sorted(root.rglob("*")):
@@ -195,4 +194,3 @@ def pytest_collection_modifyitems(config, items):
         if "main_run" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.xdist_group("main_run"))
-
