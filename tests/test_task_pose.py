@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from resti_lib import values as V
-from resti_lib.geometry.frames import make_T, yaw_matrix
+from resti_lib.geometry.frames import make_T, rotation_angle_deg, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.measure.motion import sample_window
 from resti_lib.tasks import pose as P
@@ -53,11 +53,11 @@ def test_rotation_angle_of_a_rounded_matrix_is_its_rounding_not_three_degrees():
     # by hand: the nearest rotation of [[a, -b], [b, a]] turns by atan2(b, a); arccos((trace - 1) / 2)
     # of the unprojected product would say 2.99 degrees
     want = 35.0 - math.degrees(math.atan2(0.57, 0.82))
-    assert P.rotation_angle_deg(R, printed) == pytest.approx(want, abs=1e-9) and want < 0.2
-    assert P.rotation_angle_deg(np.eye(3), printed) == pytest.approx(math.degrees(math.atan2(0.57, 0.82)), abs=1e-9)
+    assert rotation_angle_deg(R, printed) == pytest.approx(want, abs=1e-9) and want < 0.2
+    assert rotation_angle_deg(np.eye(3), printed) == pytest.approx(math.degrees(math.atan2(0.57, 0.82)), abs=1e-9)
     Rx = Rotation.from_euler("xyz", [20.0, -50.0, 110.0], degrees=True).as_matrix()
-    assert P.rotation_angle_deg(Rx, np.round(Rx, 2)) < 0.5
-    assert P.rotation_angle_deg(np.eye(3), Rx) == pytest.approx(np.degrees(Rotation.from_matrix(Rx).magnitude()))
+    assert rotation_angle_deg(Rx, np.round(Rx, 2)) < 0.5
+    assert rotation_angle_deg(np.eye(3), Rx) == pytest.approx(np.degrees(Rotation.from_matrix(Rx).magnitude()))
 
 
 def test_timestamp_search_finds_the_wrong_sample():
@@ -93,7 +93,7 @@ def test_question_wording():
         assert part in q
     q2 = P.question_text("Omni6DPose", 0.0, 7.5, None)
     assert "t=0 s as the identity" in q2 and "t=7.5 s" in q2
-    assert P.rotation_angle_deg(np.eye(3), yaw_matrix(np.radians(30.0))) == pytest.approx(30.0)
+    assert rotation_angle_deg(np.eye(3), yaw_matrix(np.radians(30.0))) == pytest.approx(30.0)
 
 
 # ------------------------------------------------------------------------------- mini-world

@@ -246,6 +246,9 @@ def _medoid(vecs: dict, dist=None) -> frozenset:
 
 
 def _rot_angle(A, B) -> float:
+    """Angle (radians) between two matrices as printed, from the trace alone. An attacker reads the
+    printed entries, so no projection onto SO(3) here; the audit's own angle, on projected rotations,
+    is :func:`resti_lib.geometry.frames.rotation_angle_deg`."""
     c = (np.trace(np.asarray(A).T @ np.asarray(B)) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 

@@ -236,4 +236,4 @@ def pose_separation(a: V.Pose, b: V.Pose, floors: dict) -> float:
 
 __all__ = ["OptionSpec", "Rule", "spec_of", "load_option_params", "task_rule", "kind_of", "per_source",
            "speed_bound", "scalar_bounds", "scalar_gap", "angle_gap", "box_floors", "pose_floors",
-           "rotation_angle_deg", "box_separation", "pose_separation", "OPTION_PARAMS"]
+           "box_separation", "pose_separation", "OPTION_PARAMS"]

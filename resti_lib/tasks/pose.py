@@ -46,7 +46,7 @@ from ..contract import NUM, Contract, base_contract, find_pose_json
 from ..errors import ContractError, InputError
 from ..figures import save_figure
 from ..geometry import trajectory as G
-from ..geometry.frames import invert_T, nearest_rotation, rotation_angle_deg
+from ..geometry.frames import invert_T, rotation_angle_deg
 from ..geometry.trajectory import PoseTrack
 from ..measure.motion import sample_window
 from . import register_task
@@ -389,12 +389,10 @@ __all__ = [
     "TASK",
     "Pose",
     "diagnosis_table",
-    "nearest_rotation",
     "plot_translation_change",
     "pose_at_time",
     "question_text",
     "resolve_premise",
-    "rotation_angle_deg",
     "timestamp_search",
     "wrong_timestamp_summary",
 ]
