@@ -183,9 +183,44 @@ KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL",
                     "--IPKernelApp.exec_lines=import resti_lib.tables as _rt; _rt.install_display()"]
 
 
+KERNEL_LOG_TAIL = 1500  # characters of the kernel's own output quoted when the kernel fails
+
+
+def _kernel_manager_writing_to(sink):
+    """A kernel manager class whose kernel process writes its own stdout and stderr to ``sink``.
+
+    The kernel's process output is not the notebook's output (that travels over the kernel's
+    channels into the executed notebook). It is the kernel's log: start-up notices, and races of its
+    own shutdown that it reports as tracebacks although the notebook ran to the end. Inherited, it
+    would land in the middle of ``resti run``'s progress bar; kept apart, it is quoted only when the
+    kernel fails."""
+    from jupyter_client.manager import AsyncKernelManager
+
+    class _Manager(AsyncKernelManager):
+        async def start_kernel(self, **kw):
+            kw.update(stdout=sink, stderr=sink)
+            return await super().start_kernel(**kw)
+
+    return _Manager
+
+
+def _tail(sink, lines: int = 8) -> str:
+    """The last ``lines`` non-blank lines the kernel process wrote (at most :data:`KERNEL_LOG_TAIL`
+    characters)."""
+    sink.flush()
+    sink.seek(0)
+    kept = [ln.rstrip() for ln in sink.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+    return "\n".join(kept[-lines:])[-KERNEL_LOG_TAIL:]
+
+
 def run_notebook(nb_path: str | Path, params: dict, *, out_dir: Path | None = None,
                  html_dir: Path | None = None, progress: bool = False) -> NotebookRun:
-    """Execute one notebook with papermill (kernel ``python3``, working directory = repo root)."""
+    """Execute one notebook with papermill (kernel ``python3``, working directory = repo root).
+
+    The kernel process's own output goes to an unnamed temporary file (see
+    :func:`_kernel_manager_writing_to`); its last lines are part of the error when the kernel fails."""
+    import tempfile
+
     import papermill
     from papermill.exceptions import PapermillExecutionError
 
@@ -196,16 +231,21 @@ def run_notebook(nb_path: str | Path, params: dict, *, out_dir: Path | None = No
     check_parameters(nb_path, params)
     executed = out_dir / nb_path.name
     t0 = time.perf_counter()
-    try:
-        papermill.execute_notebook(str(nb_path), str(executed), parameters=params, kernel_name=KERNEL,
-                                   cwd=str(paths.ROOT), progress_bar=progress, log_output=False,
-                                   extra_arguments=list(KERNEL_ARGUMENTS))
-    except PapermillExecutionError as e:
-        raise NotebookError(f"notebook {nb_path.name} failed in {_failing_cell(executed)} "
-                            f"(executed copy: {executed})") from e
-    except Exception as e:  # the kernel could not start, died or timed out
-        first = (str(e).strip().splitlines() or [""])[0]
-        raise NotebookError(f"notebook {nb_path.name}: the kernel failed ({type(e).__name__}: {first})") from e
+    with tempfile.TemporaryFile() as sink:
+        try:
+            papermill.execute_notebook(str(nb_path), str(executed), parameters=params, kernel_name=KERNEL,
+                                       cwd=str(paths.ROOT), progress_bar=progress, log_output=False,
+                                       extra_arguments=list(KERNEL_ARGUMENTS),
+                                       kernel_manager_class=_kernel_manager_writing_to(sink))
+        except PapermillExecutionError as e:
+            raise NotebookError(f"notebook {nb_path.name} failed in {_failing_cell(executed)} "
+                                f"(executed copy: {executed})") from e
+        except Exception as e:  # the kernel could not start, died or timed out
+            first = (str(e).strip().splitlines() or [""])[0]
+            log = _tail(sink)
+            said = f"; the kernel's last output:\n{log}" if log else "; the kernel printed nothing"
+            raise NotebookError(f"notebook {nb_path.name}: the kernel failed ({type(e).__name__}: {first}){said}") \
+                from e
     seconds = time.perf_counter() - t0
     html = render_html(executed, html_dir / (nb_path.stem + ".html"))
     return NotebookRun(nb_path.stem, executed, html, seconds)
