@@ -177,8 +177,10 @@ def render_html(executed: Path, html_path: Path) -> Path:
 
 
 # Kernel settings for executed notebooks: its log at CRITICAL (the kernel warns on every start that
-# it talks over local TCP, and logs the interrupt of its own shutdown), and tables displayed as the
-# report shows them (no index column, shares as percentages: resti_lib.tables.install_display).
+# it talks over local TCP, and logs the interrupt of its own shutdown; that log goes to the kernel's
+# own file, see _kernel_manager_writing_to, and routine lines would crowd out the ones quoted when it
+# fails), and tables displayed as the report shows them (no index column, shares as percentages:
+# resti_lib.tables.install_display).
 KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL",
                     "--IPKernelApp.exec_lines=import resti_lib.tables as _rt; _rt.install_display()"]
 
