@@ -60,7 +60,7 @@ lint: $(STAMP)  ## ruff
 	$(BIN)/ruff check resti_lib tests bench
 
 strip-notebooks: $(STAMP)  ## remove outputs from committed notebooks
-	$(BIN)/python -m resti_lib.runner --strip notebooks/*.ipynb
+	$(BIN)/python -m resti_lib.run.notebooks --strip notebooks/*.ipynb
 
 clean:  ## remove generated outputs (keeps .venv)
 	rm -rf outputs/* outputs/.resti && touch outputs/.gitkeep

@@ -19,7 +19,7 @@ def _cli(args: list[str]) -> tuple[float, float]:
     """Wall and CPU (children) seconds of one ``resti attack`` run, output discarded."""
     c0 = os.times()
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "resti_lib.cli", "attack", *args], check=True,
+    subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "attack", *args], check=True,
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     c1 = os.times()
     return time.perf_counter() - t0, (c1.children_user + c1.children_system) - (c0.children_user + c0.children_system)
@@ -52,7 +52,7 @@ def main() -> None:
 
     from resti_lib.io.benchmark import load_release
     from resti_lib.options.attacks import ATTACKS, FAMILIES, _run_one, make_batch, parse_rows, select
-    from resti_lib.verify import verify_release
+    from resti_lib.release.verify import verify_release
 
     rel, w_load, c_load = _timed(lambda: load_release(src, strict=False))
     records = rel.accepted.to_dict("records")

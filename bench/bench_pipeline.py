@@ -68,7 +68,7 @@ def kernel_startup_s(repeat: int = 3) -> float:
     import nbformat
     import papermill
 
-    from resti_lib.runner import KERNEL, KERNEL_ARGUMENTS
+    from resti_lib.run.notebooks import KERNEL, KERNEL_ARGUMENTS
 
     with tempfile.TemporaryDirectory() as d:
         nb = nbformat.v4.new_notebook()

@@ -22,7 +22,7 @@ import json, os, resource, sys, time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from resti_lib import TASKS
-from resti_lib.release import assemble
+from resti_lib.release.assemble import assemble
 from resti_lib.tasks.run import run_task
 import pandas as pd
 

@@ -133,7 +133,7 @@ def run_cli(args: list[str], *, umask: int | None = None, cwd=None, env: dict | 
 
     e = {**os.environ, "SOURCE_DATE_EPOCH": SOURCE_DATE_EPOCH, **(env or {})}
     pre = (lambda: os.umask(umask)) if umask is not None else None
-    return subprocess.run([sys.executable, "-m", "resti_lib.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "resti_lib.run.cli", *args], capture_output=True, text=True,
                           cwd=cwd or paths.ROOT, env=e, preexec_fn=pre, timeout=1800, check=False)
 
 
@@ -169,7 +169,7 @@ def main_run(miniworld, tmp_path_factory) -> MainRun:
 
     import yaml
 
-    from resti_lib.pipeline import _generator_stamp
+    from resti_lib.run.pipeline import _generator_stamp
 
     with _once_per_session(tmp_path_factory, "main_run") as (base, make):
         out, params, record = base / "outputs", base / "params.yaml", base / "run.json"

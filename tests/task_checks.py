@@ -100,7 +100,7 @@ def check_notebook(stem: str, params_yaml: str) -> None:
     import yaml
 
     from resti_lib import paths
-    from resti_lib.runner import check_parameters, notebook_parameters
+    from resti_lib.run.notebooks import check_parameters, notebook_parameters
     from resti_lib.tasks.run import COMMON_KEYS
 
     nb_path = paths.NOTEBOOKS / f"{stem}.ipynb"

@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from resti_lib.cli import main as cli_main
 from resti_lib.options.attacks import FAMILIES, attack_table, headline
 from resti_lib.options.learned import LearnedConfig
+from resti_lib.run.cli import main as cli_main
 from tests.attack_release import CELL_ROWS, PLANTS, ROWS_PER_VIDEO, release_rows
 from tests.helpers import write_release
 

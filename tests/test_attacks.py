@@ -19,7 +19,7 @@ from resti_lib.options.attacks import (
     select,
     tie_aware_p,
 )
-from resti_lib.statistics import critical_hits, min_detectable_accuracy
+from resti_lib.report.statistics import critical_hits, min_detectable_accuracy
 from tests.helpers import row
 
 

@@ -21,7 +21,7 @@ class Result:
 @pytest.fixture
 def resti(capsys, monkeypatch):
     """``resti ARGS`` in this process (from ``cwd``): exit code, stdout and stderr."""
-    from resti_lib.cli import main
+    from resti_lib.run.cli import main
 
     def call(*args, cwd=None):
         monkeypatch.chdir(cwd or paths.ROOT)
@@ -100,7 +100,7 @@ def test_closed_pipe_ends_quietly(tmp_path):
     rd, wr = os.pipe()
     os.close(rd)  # the reader is gone before the first line is written (`resti attack ... | head`)
     try:
-        r = subprocess.run([sys.executable, "-m", "resti_lib.cli", "attack", str(rel)], stdout=wr,
+        r = subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "attack", str(rel)], stdout=wr,
                            stderr=subprocess.PIPE, text=True, timeout=300, check=False)
     finally:
         os.close(wr)

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from resti_lib import TASKS, paths
-from resti_lib.runner import notebook_parameters
+from resti_lib.run.notebooks import notebook_parameters
 from resti_lib.tasks import task_for
 from resti_lib.tasks.run import COMMON_KEYS
 
@@ -58,7 +58,7 @@ def test_task_settings_are_the_yaml():
 
 def test_no_module_keeps_a_second_table_of_defaults():
     files = sorted((paths.ROOT / "resti_lib" / "tasks").glob("*.py")) + \
-        sorted((paths.ROOT / "resti_lib" / "measure").glob("*.py")) + [paths.ROOT / "resti_lib" / "referents.py"]
+        sorted((paths.ROOT / "resti_lib" / "measure").glob("*.py")) + [paths.ROOT / "resti_lib" / "sources" / "referents.py"]
     found = []
     for f in files:
         for node in ast.walk(ast.parse(f.read_text())):

@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from resti_lib import errors
-from resti_lib.cli import main as cli_main
 from resti_lib.errors import InputError, RestiError
-from resti_lib.runner import load_params
+from resti_lib.run.cli import main as cli_main
+from resti_lib.run.notebooks import load_params
 from tests.helpers import row, seal_release, write_release
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -132,8 +132,10 @@ def test_planted_stage_params_never_reach_a_notebook(tmp_path):
 # ----------------------------------------------------------------------------- hierarchy (11)
 
 def test_one_exception_hierarchy():
-    from resti_lib import release, reoption, runner
     from resti_lib.options import stage
+    from resti_lib.release import assemble as release
+    from resti_lib.release import reoption
+    from resti_lib.run import notebooks as runner
 
     for name in errors.__all__:
         assert issubclass(getattr(errors, name), RestiError), name
@@ -158,7 +160,7 @@ def test_one_exception_hierarchy():
 
 
 def test_cli_prints_one_line_for_any_resti_error(monkeypatch):
-    import resti_lib.verify as V
+    import resti_lib.release.verify as V
 
     for exc, code in ((errors.InvariantError("rows lost"), 1), (errors.OutputError("not ours", file="x"), 2),
                       (errors.BusyError("held", file="y"), 3), (InputError("bad", file="z", row=3, field="ID"), 2)):
@@ -333,7 +335,7 @@ def test_synth_scale_out_of_bounds(tmp_path, scale):
 def test_no_traceback_from_a_real_process(release):
     """The same messages from the installed entry point (a separate process)."""
     _utf16(release)
-    r = subprocess.run([sys.executable, "-m", "resti_lib.cli", "verify", str(release)], check=False, capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "verify", str(release)], check=False, capture_output=True,
                        text=True, timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr and "UTF-16" in one_line(r.stderr)
 

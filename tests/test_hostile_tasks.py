@@ -12,7 +12,7 @@ import pytest
 
 from resti_lib.defects import DEFECTS, REASONS
 from resti_lib.errors import InputError
-from resti_lib.release import assemble
+from resti_lib.release.assemble import assemble
 from resti_lib.sources.scannet import read_sens_header
 from resti_lib.tasks.run import run_task
 

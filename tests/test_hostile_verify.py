@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from resti_lib.verify import format_text, verify_path
+from resti_lib.release.verify import format_text, verify_path
 from tests.helpers import row, seal_release, write_release
 
 
@@ -172,8 +172,8 @@ def test_checksum_entries_stay_inside_the_release(tmp_path):
     with open(rel / "SHA256SUMS", "a", encoding="utf-8") as f:
         f.writelines("0" * 64 + f"  {name}\n" for name in extra)
     # in a separate process with a time limit: a FIFO or a device must never be opened (it would block)
-    r = subprocess.run([sys.executable, "-m", "resti_lib.cli", "verify", str(rel), "--json"], check=False, capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "verify", str(rel), "--json"], check=False,
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 1, r.stderr
     v = json.loads(r.stdout)
     c = v["checks"]["sha256"]
@@ -190,8 +190,8 @@ def test_device_named_as_an_artifact_is_not_opened(tmp_path):
     meta = json.loads((rel / "release.json").read_text())
     meta["artifacts"] = {"zero": {"bytes": 1, "sha256": "0" * 64}}
     (rel / "release.json").write_text(json.dumps(meta))
-    r = subprocess.run([sys.executable, "-m", "resti_lib.cli", "verify", str(rel), "--json"], check=False, capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "verify", str(rel), "--json"], check=False,
+                       capture_output=True, text=True, timeout=120)
     c = json.loads(r.stdout)["checks"]["sha256"]
     assert r.returncode == 1 and c["failing"] == ["zero"]
     assert "resolves outside" in c["messages"]["release.json: zero"]

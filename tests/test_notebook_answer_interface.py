@@ -5,7 +5,7 @@ import json
 import pytest
 
 from resti_lib import paths
-from resti_lib.runner import NotebookError, run_notebook
+from resti_lib.run.notebooks import NotebookError, run_notebook
 from tests.helpers import row, write_release
 
 pytestmark = pytest.mark.notebook

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from resti_lib import paths
-from resti_lib.runner import notebook_parameters, run_notebook
+from resti_lib.run.notebooks import notebook_parameters, run_notebook
 from resti_lib.tasks.run import COMMON_KEYS
 
 NOTEBOOKS = {"03_dimensional": "dimensional", "05_displacement": "displacement", "06_speed": "speed"}

@@ -64,7 +64,7 @@ def test_release_json_states_the_run(main_run, miniworld):
     assert run["date"] == "2023-11-14T22:13:20Z"  # SOURCE_DATE_EPOCH=1700000000
     assert re.fullmatch(r"[0-9a-f]{64}", run["params_digest"])
     # the digest the pipeline states equals the one computed from the params files alone
-    from resti_lib.runinfo import default_context
+    from resti_lib.run.runinfo import default_context
 
     assert default_context(main_run.params)["params_digest"] == run["params_digest"]
     assert run["code"]["package"].startswith("resti ")

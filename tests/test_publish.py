@@ -15,12 +15,12 @@ from pathlib import Path
 
 import pytest
 
-from resti_lib import publish
-from resti_lib.cli import main as cli_main
 from resti_lib.errors import BusyError, OutputError
-from resti_lib.lock import folder_lock, lock_file_for, run_lock
-from resti_lib.publish import MARKER, publishing, recover
-from resti_lib.reoption import reoption_release
+from resti_lib.io.lock import folder_lock, lock_file_for, run_lock
+from resti_lib.release import publish
+from resti_lib.release.publish import MARKER, publishing, recover
+from resti_lib.release.reoption import reoption_release
+from resti_lib.run.cli import main as cli_main
 from tests.helpers import row, seal_release, write_release
 
 
@@ -39,7 +39,7 @@ def release(tmp_path) -> Path:
 
 def _holder(lock_path: Path, seconds: float = 60.0) -> subprocess.Popen:
     """Another process holding a lock file (it prints 'held' once it has it)."""
-    code = ("import sys, time\nfrom resti_lib.lock import hold\n"
+    code = ("import sys, time\nfrom resti_lib.io.lock import hold\n"
             f"with hold({str(lock_path)!r}, what='test'):\n    print('held', flush=True)\n    time.sleep({seconds})\n")
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     assert p.stdout.readline().strip() == "held"
@@ -307,7 +307,7 @@ def test_killed_generation_keeps_the_previous_world(tmp_path):
 def test_a_run_waits_for_the_world_being_generated(tmp_path):
     """The second run needing the mini-world waits while another process holds it, then uses the
     world that process made (it does not generate a second one)."""
-    from resti_lib.pipeline import _generator_stamp, ensure_world
+    from resti_lib.run.pipeline import _generator_stamp, ensure_world
 
     w = tmp_path / "world"
     (w / "legacy").mkdir(parents=True)

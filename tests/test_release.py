@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from resti_lib.io.benchmark import load_legacy
-from resti_lib.release import InvariantError, assemble, collect, write_release
+from resti_lib.release.assemble import InvariantError, assemble, collect, write_release
 from resti_lib.tasks.base import AnswerSpec, Outcome, finalize, slug, write_task_outputs
 from tests.helpers import row, write_legacy
 
@@ -90,7 +90,7 @@ def test_crash_mid_write_keeps_previous_release(tmp_path, monkeypatch):
     rel = tmp_path / "out" / "release"
     assemble(legacy_path, tmp_path / "out" / "tasks", rel)
     before = {p.name: p.read_bytes() for p in rel.iterdir()}
-    import resti_lib.release as R
+    import resti_lib.release.assemble as R
 
     def boom(*a, **k):
         raise KeyboardInterrupt("simulated crash")

@@ -10,7 +10,7 @@ import pytest
 
 from resti_lib import TASKS
 from resti_lib.errors import InputError
-from resti_lib.release import assemble
+from resti_lib.release.assemble import assemble
 from resti_lib.tasks.run import run_task
 
 

@@ -17,15 +17,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from resti_lib import LETTERS
-from resti_lib import reoption as RO
 from resti_lib import values as V
-from resti_lib.cli import main as cli_main
 from resti_lib.io.benchmark import load_release
 from resti_lib.options.attacks import attack_table, binom_p, parse_rows
 from resti_lib.options.learned import LearnedConfig, attack_table_with_learned, learned_picks
 from resti_lib.options.population import Marginal
 from resti_lib.options.stage import constrained_schedule
-from resti_lib.verify import verify_path
+from resti_lib.release import reoption as RO
+from resti_lib.release.verify import verify_path
+from resti_lib.run.cli import main as cli_main
 from tests.helpers import row, seal_release, write_release
 
 FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json", "release.json", "SHA256SUMS",
@@ -172,7 +172,7 @@ def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypat
     out = tmp_path / "out"
     RO.reoption_release(tiny_release, out, seed=5)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    from resti_lib import release as release_writer
+    from resti_lib.release import assemble as release_writer
 
     real = release_writer.verify_release
 
@@ -381,7 +381,7 @@ def test_v5_rebuilt_release_loads_strictly(rebuilt):
 @pytest.mark.notebook
 def test_notebook_runs_on_a_small_release(tiny_release, tmp_path):
     from resti_lib import paths
-    from resti_lib.runner import load_params, run_notebook
+    from resti_lib.run.notebooks import load_params, run_notebook
 
     params = load_params(paths.PARAMS / "reoption.yaml")
     params.update(release_path=str(tiny_release), output_dir=str(tmp_path / "rel"), table_dir=str(tmp_path / "t"),

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from resti_lib.report import write_index
+from resti_lib.report.index import write_index
 from resti_lib.sources.context import check_real_params
 
 
@@ -67,7 +67,7 @@ def test_run_with_bad_paths_exits_2_with_one_message(tmp_path):
     bad = tmp_path / "real.yaml"
     bad.write_text(f"world_dir: ''\nlegacy_benchmark: {tmp_path}/qa.parquet\nscannet_root: {tmp_path}/s\n"
                    f"waymo_root: {tmp_path}/w\nomni6d_root: {tmp_path}/o\nstages: []\n")
-    r = subprocess.run([sys.executable, "-m", "resti_lib.cli", "run", "--params", str(bad)], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "resti_lib.run.cli", "run", "--params", str(bad)], capture_output=True,
                        text=True)
     assert r.returncode == 2
     for key in ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root"):
@@ -77,7 +77,7 @@ def test_run_with_bad_paths_exits_2_with_one_message(tmp_path):
 # ------------------------------------------------------------------ header, tables, figures
 
 def test_run_context_date_only_from_source_date_epoch(monkeypatch):
-    from resti_lib.runinfo import run_context
+    from resti_lib.run.runinfo import run_context
 
     cfg = {"world_dir": "outputs/miniworld", "world_seed": 3, "legacy_benchmark": "outputs/miniworld/legacy/qa.parquet",
            "output_dir": "outputs", "stages": []}
@@ -90,7 +90,7 @@ def test_run_context_date_only_from_source_date_epoch(monkeypatch):
 
 
 def test_run_context_real_input_and_params_digest():
-    from resti_lib.runinfo import run_context, stage_params_digest
+    from resti_lib.run.runinfo import run_context, stage_params_digest
 
     cfg = {"world_dir": "", "legacy_benchmark": "/data/qa.parquet", "scannet_root": "/data/scans",
            "output_dir": "outputs/real", "jobs": 2, "stages": [{"notebook": "03_dimensional"}]}
@@ -105,7 +105,7 @@ def test_run_context_real_input_and_params_digest():
 
 
 def test_shown_tables_format_percentages_and_drop_positions():
-    from resti_lib.tables import formatted, to_html
+    from resti_lib.io.tables import formatted, to_html
 
     df = pd.DataFrame({"category": ["a", "b", "c"], "reports": [83, 13, 4], "share": [0.83, 0.13, 0.04],
                        "p_value": [0.000123456, 0.5, 1.0]}).sort_values("reports", ascending=True)
@@ -118,7 +118,7 @@ def test_shown_tables_format_percentages_and_drop_positions():
 
 
 def test_write_table_shows_percent_and_keeps_raw_csv(tmp_path):
-    from resti_lib.tables import write_table
+    from resti_lib.io.tables import write_table
 
     write_table(pd.DataFrame({"defect": ["x"], "recall": [0.875]}), tmp_path / "t")
     assert "87.5%" in (tmp_path / "t.md").read_text() and "87.5\\%" in (tmp_path / "t.tex").read_text()
@@ -126,7 +126,7 @@ def test_write_table_shows_percent_and_keeps_raw_csv(tmp_path):
 
 
 def test_key_detail_breakdown_by_cause():
-    from resti_lib.statistics import key_detail_breakdown
+    from resti_lib.report.statistics import key_detail_breakdown
     from tests.helpers import row
 
     five = {"A": "1.00m", "B": "2.00m", "C": "3.00m", "D": "4.00m", "E": "5.00m"}
@@ -150,7 +150,7 @@ def test_key_detail_breakdown_by_cause():
 
 
 def test_exclusions_recoverable_or_structural():
-    from resti_lib.statistics import exclusion_class_table
+    from resti_lib.report.statistics import exclusion_class_table
 
     ex = [{"task": "Dimensional Measurement", "reason_codes": ["ambiguous_instance"]},
           {"task": "Dimensional Measurement", "reason_codes": ["not_visible_at_frame", "undefined_dimension"]},
@@ -163,7 +163,7 @@ def test_exclusions_recoverable_or_structural():
 
 
 def test_pooled_scalar_attacks_median_pick():
-    from resti_lib.statistics import pooled_scalar_attacks
+    from resti_lib.report.statistics import pooled_scalar_attacks
     from tests.helpers import row
 
     # 10 scalar rows whose answer is always the median candidate (C of 1..5), across two tasks,
@@ -181,7 +181,7 @@ def test_pooled_scalar_attacks_median_pick():
 
 
 def test_figure_registry_order_and_captions(tmp_path):
-    from resti_lib.figures import FIGURES, ordered_figures
+    from resti_lib.report.figures import FIGURES, ordered_figures
 
     for name in ("07_trajectory_paths", "zz_other", "99_attacks_after", "99_audit_overview",
                  "00_answer_interface_attacks_resti_v5"):
@@ -194,7 +194,7 @@ def test_figure_registry_order_and_captions(tmp_path):
 
 @pytest.mark.slow
 def test_default_run_makes_only_registered_figures(main_run):
-    from resti_lib.figures import spec_for
+    from resti_lib.report.figures import spec_for
 
     pngs = sorted(p.stem for p in (main_run.out / "figures").glob("*.png"))
     assert "99_audit_overview" in pngs

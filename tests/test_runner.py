@@ -7,7 +7,7 @@ import nbformat
 import pytest
 
 from resti_lib.errors import NotebookError
-from resti_lib.runner import run_notebook
+from resti_lib.run.notebooks import run_notebook
 
 
 def _notebook(path, *sources):

@@ -233,7 +233,7 @@ def test_vehicle_pose_errors_name_the_file_row_among_other_segments(tmp_path):
 
 def test_snapshot_far_from_box_frames_excludes_but_damaged_boxes_stop(tmp_path):
     from resti_lib.errors import ContractError
-    from resti_lib.referents import SceneView
+    from resti_lib.sources.referents import SceneView
 
     root = write_segment(tmp_path / "w")  # box frames at 0.0 .. 0.4 s
     view = SceneView("Waymo", W.WaymoSegment(root, SEG), 1)

@@ -8,8 +8,8 @@ import yaml
 
 from resti_lib import paths
 from resti_lib.errors import InputError
-from resti_lib.pipeline import downstream, match_only, plan
-from resti_lib.stages import Fingerprints, State, fingerprint, scan, stage_key
+from resti_lib.run.plan import downstream, match_only, plan
+from resti_lib.run.stages import Fingerprints, State, fingerprint, scan, stage_key
 
 TASK_STAGES = ["01_grounding", "02_orientation", "03_dimensional", "04_relation", "05_displacement", "06_speed",
                "07_trajectory", "08_pose"]
@@ -103,8 +103,8 @@ def test_state_staleness(tmp_path):
 def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, monkeypatch, capsys):
     """The stage logic of ``resti run`` with notebooks replaced by a stand-in that writes each
     stage's files (no kernel): what runs, what is skipped, what ``--only`` leaves and says."""
-    import resti_lib.pipeline as P
-    from resti_lib.runner import NotebookRun
+    import resti_lib.run.pipeline as P
+    from resti_lib.run.notebooks import NotebookRun
 
     (tmp_path / "shared" / "data" / "resti_v5").mkdir(parents=True)
     monkeypatch.setenv("RESTI_SHARED", str(tmp_path / "shared"))  # the reference exists: 00 beside 99
@@ -158,8 +158,8 @@ def test_a_wave_starts_its_longest_stages_first(tmp_path):
     """Two workers, stages of 1, 4, 5 and 9 s last time: in params order the 9 s stage starts last,
     at 4 s, and the wave lasts 13 s; longest first it lasts 10 s (9 | 5 + 4, then 1). Stages never
     run go first, in params order."""
-    from resti_lib.pipeline import longest_first
-    from resti_lib.stages import State
+    from resti_lib.run.pipeline import longest_first
+    from resti_lib.run.stages import State
 
     st = State(tmp_path)
     for n, s in {"a": 1.0, "b": 4.0, "c": 5.0, "d": 9.0}.items():

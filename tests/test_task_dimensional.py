@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from resti_lib import measure as M
-from resti_lib import referents as R
+from resti_lib.sources import referents as R
 from resti_lib.sources.scannet import OrientedBox
 from tests import scalar_helpers as H
 from tests.test_sources_omni6d import SCENE as ROPE_SCENE

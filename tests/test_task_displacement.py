@@ -193,7 +193,7 @@ def test_miniworld_no_significant_attack_and_valid_options(disp_run):
 def test_subject_phrases_of_the_scalar_questions():
     from types import SimpleNamespace
 
-    from resti_lib.referents import noun_phrase
+    from resti_lib.sources.referents import noun_phrase
     from resti_lib.tasks.scalar_audit import subject_phrase
 
     assert noun_phrase("A white utility truck.") == "the white utility truck"

@@ -16,7 +16,7 @@ from resti_lib.errors import InputError
 from resti_lib.measure import evaluate_contract
 from resti_lib.measure.boxes import scannet_box, validate_box, waymo_box
 from resti_lib.options.attacks import attack_table
-from resti_lib.referents import resolve
+from resti_lib.sources.referents import resolve
 from resti_lib.sources.scannet import ScanNetScene
 from resti_lib.sources.waymo import WaymoSegment
 from resti_lib.tasks import grounding as G

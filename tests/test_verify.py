@@ -9,8 +9,8 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from resti_lib.cli import main as cli_main
-from resti_lib.verify import verify_path
+from resti_lib.release.verify import verify_path
+from resti_lib.run.cli import main as cli_main
 
 
 def test_v5_reproduces_release_json(resti_v5_dir):

@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 from ..errors import ContractError
-from ..referents import Instance, SceneView, Snapshot, box_box_distance
+from ..sources.referents import Instance, SceneView, Snapshot, box_box_distance
 from ..sources.waymo import camera_number
 from .registry import MeasureContext, register_operator
 
@@ -53,7 +53,7 @@ def pair_distance(a: Instance, b: Instance) -> tuple[float, dict]:
 
 
 def scene_view(ctx: MeasureContext) -> SceneView:
-    """The contract's sequence as a :class:`~resti_lib.referents.SceneView` (visibility settings of the params)."""
+    """The contract's sequence as a :class:`~resti_lib.sources.referents.SceneView` (visibility settings of the params)."""
     cam = None
     if ctx.source == "Waymo":
         cam = camera_number(ctx.camera) if ctx.camera not in (None, "") else None

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ..errors import ContractError
-from ..referents import frame_of_time, omni_boxes_at
+from ..sources.referents import frame_of_time, omni_boxes_at
 from .registry import MeasureContext, register_operator
 
 __all__ = ["MOUNT_CENTRES", "camera_up_at", "mount_relation", "relative_position"]

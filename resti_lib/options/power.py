@@ -62,3 +62,14 @@ def attack_power(n_rows, tests: int, *, alpha: float = 0.05, power: float = POWE
     md = [min_detectable_accuracy(n, level, power=power, chance=chance) for n in sizes]
     return pd.DataFrame({"n_rows": sizes, "level": level, "min_detectable": md,
                          "underpowered": [not (m <= underpowered_at) for m in md]})
+
+
+def clopper_pearson(hits, n, level: float = 0.95):
+    """Exact binomial confidence interval for hits/n (arrays allowed)."""
+    from scipy.stats import beta  # imported here: most figures do not need scipy
+
+    hits, n = np.asarray(hits, float), np.asarray(n, float)
+    a = (1 - level) / 2
+    lo = np.where(hits > 0, beta.ppf(a, np.maximum(hits, 1e-12), n - hits + 1), 0.0)
+    hi = np.where(hits < n, beta.ppf(1 - a, hits + 1, np.maximum(n - hits, 1e-12)), 1.0)
+    return lo, hi

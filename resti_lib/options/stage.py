@@ -1,6 +1,6 @@
 """The option stage: the five candidates of every accepted row, built once.
 
-Used where the release is assembled (:func:`resti_lib.release.write_release`) and by ``resti
+Used where the release is assembled (:func:`resti_lib.release.assemble.write_release`) and by ``resti
 reoption`` — the same code, so what the report audits is what ships. Input: accepted rows in the
 ReSTI schema (their ``Answer Detail`` is the answer; any existing candidates are ignored except the
 label set of a categorical task) and, optionally, what each task knows beyond the row

@@ -33,7 +33,7 @@ import pyarrow as pa
 from .. import paths
 from ..defects import DEFECTS
 from ..errors import InputError
-from ..publish import publishing
+from ..release.publish import publishing
 from . import legacy as _legacy
 from . import omni6d as _omni6d
 from . import scannet as _scannet
@@ -329,7 +329,7 @@ def generate(
     ----------
     out_dir : path
         Output folder: absent, empty, or a mini-world written before. The new world is built in a
-        staging folder beside it and swapped in whole when complete (:mod:`resti_lib.publish`), so an
+        staging folder beside it and swapped in whole when complete (:mod:`resti_lib.release.publish`), so an
         interrupted generation leaves the previous world (or nothing), never half a world, and a
         folder holding anything else is refused (:class:`~resti_lib.errors.OutputError`).
     seed : int

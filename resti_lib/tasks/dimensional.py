@@ -11,10 +11,10 @@ Contract per operator (the rewritten question states each part):
 ``distance_to_camera``
     Distance from the camera's optical centre to the nearest point of the solid box at the asked
     time (0 inside the box); the referent must be visible in that frame (frustum test with the
-    frame's intrinsics, :func:`resti_lib.referents.box_visibility`).
+    frame's intrinsics, :func:`resti_lib.sources.referents.box_visibility`).
 ``object_distance``
     Minimum Euclidean distance between the two solid oriented boxes
-    (:func:`resti_lib.referents.box_box_distance`; 0 when they touch or overlap).
+    (:func:`resti_lib.sources.referents.box_box_distance`; 0 when they touch or overlap).
 
 ScanNet box convention (diagnosed per task, as Speed diagnoses its statistic): every ScanNet value
 is computed under the tight gravity-upright box (footprint = minimum-area rectangle; length and
@@ -50,7 +50,7 @@ from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
 from ..contract import Contract, base_contract, description, instant, object_pair
 from ..errors import ContractError
 from ..measure.objects import CHAIN, DIMS, camera_distance, pair_distance
-from ..referents import Instance, Referent, SceneView, Snapshot, noun_phrase, read_phrase
+from ..sources.referents import Instance, Referent, SceneView, Snapshot, noun_phrase, read_phrase
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Task
 from .scalar_audit import (

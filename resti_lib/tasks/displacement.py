@@ -38,7 +38,7 @@ import pandas as pd
 from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
 from ..errors import ContractError
-from ..referents import SceneView
+from ..sources.referents import SceneView
 from . import register_task
 from .base import AnswerSpec, Case, Exclude
 from .motion import (

@@ -28,7 +28,7 @@ the frame view is built with the same function.
 
 Diagnosis (report, "Diagnosis: object and camera in different worlds")
 ---------------------------------------------------------------------
-For each legacy row: the description's head noun selects source labels (:mod:`resti_lib.referents`;
+For each legacy row: the description's head noun selects source labels (:mod:`resti_lib.sources.referents`;
 for Waymo the noun's box type and size class); the instances of that label visible at the asked
 frame (frustum test with the intrinsics, params ``visibility``) are the candidates; competing
 hypotheses for the printed legacy centre are evaluated on them (correct chain, alignment omitted,
@@ -61,8 +61,8 @@ from .. import values as V
 from ..adjudicate import Diagnosis, Rule
 from ..contract import Contract, base_contract, description, instant
 from ..errors import ContractError, InputError
-from ..figures import save_figure
 from ..geometry.frames import R_WAYMO_FROM_CV, T_WAYMO_CAM_FROM_CV_CAM
+from ..io.figures import save_figure
 from ..measure.boxes import (
     CameraBox,
     camera_box,
@@ -72,8 +72,8 @@ from ..measure.boxes import (
     validate_box,
     waymo_frame,
 )
-from ..referents import box_visibility, noun_phrase, resolve, visibility_rule
 from ..sources.context import SourceContext, derived
+from ..sources.referents import box_visibility, noun_phrase, resolve, visibility_rule
 from ..sources.scannet import ScanNetScene, upright_oriented_box
 from ..sources.waymo import CAMERA_NAMES, WaymoSegment
 from . import register_task

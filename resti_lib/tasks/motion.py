@@ -39,8 +39,8 @@ from ..defaults import setting
 from ..errors import ContractError
 from ..geometry import trajectory as G
 from ..geometry.trajectory import PoseTrack
-from ..referents import GENERIC_NOUNS, WAYMO_NOUNS, SceneView, box_from, box_visibility, in_camera, size_fits
 from ..sources.context import derived
+from ..sources.referents import GENERIC_NOUNS, WAYMO_NOUNS, SceneView, box_from, box_visibility, in_camera, size_fits
 from .base import Exclude, Task
 from .scalar_audit import tie_break_by_legacy
 

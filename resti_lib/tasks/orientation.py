@@ -33,10 +33,10 @@ from .. import values as V
 from ..adjudicate import Diagnosis
 from ..contract import Contract, base_contract, interval
 from ..errors import ContractError
-from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import opencv_cam_pose_to_waymo
 from ..geometry.trajectory import PoseTrack
+from ..io.figures import save_figure
 from ..rng import row_rng
 from ..sources.context import SourceContext
 from . import register_task

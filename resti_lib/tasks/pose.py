@@ -44,10 +44,10 @@ from .. import values as V
 from ..adjudicate import Diagnosis, Rule, same_quantity_agrees
 from ..contract import NUM, Contract, base_contract, find_pose_json
 from ..errors import ContractError, InputError
-from ..figures import save_figure
 from ..geometry import trajectory as G
 from ..geometry.frames import invert_T, rotation_angle_deg
 from ..geometry.trajectory import PoseTrack
+from ..io.figures import save_figure
 from ..measure.motion import sample_window
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Outcome, Task

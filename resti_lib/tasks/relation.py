@@ -13,7 +13,7 @@ Omni6DPose (:func:`relative_position`)
 --------------------------------------
 "What is the position of A relative to B at t?" Both referents are resolved in the ROPE scene by
 the class named in their head noun phrase (one instance each, else ``no_source_instance`` /
-``ambiguous_instance`` / ``grouped_referent``; phrase reading of :mod:`resti_lib.referents`) and
+``ambiguous_instance`` / ``grouped_referent``; phrase reading of :mod:`resti_lib.sources.referents`) and
 must be annotated and visible at the asked frame (frustum test of the box with the frame's
 intrinsics, params ``visibility``, else ``not_visible_at_frame``). From camera-frame geometry at
 that frame, with ``d = c_A - c_B`` (OpenCV axes):
@@ -43,9 +43,9 @@ from .. import values as V
 from ..adjudicate import Diagnosis
 from ..contract import Contract, base_contract, instant, object_pair
 from ..errors import ContractError
-from ..figures import save_figure
+from ..io.figures import save_figure
 from ..measure.relations import mount_relation, relative_position
-from ..referents import (
+from ..sources.referents import (
     box_visibility,
     frame_of_time,
     noun_phrase,
@@ -71,7 +71,7 @@ SAME_LABEL = "same label (case and spacing ignored)"
 
 def match_referent(description: str, instances: dict[str, dict]) -> dict:
     """Resolve a description to scene instances by the class named in its head noun phrase
-    (:func:`resti_lib.referents.resolve`).
+    (:func:`resti_lib.sources.referents.resolve`).
 
     Returns ``{"status": "ok"|"no_source_instance"|"ambiguous_instance"|"grouped_referent",
     "label", "oids", "n_instances", "head"}``.

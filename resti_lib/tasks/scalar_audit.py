@@ -17,7 +17,7 @@ import pandas as pd
 
 from .. import values as V
 from ..adjudicate import Rule, agrees_scalar, rule_for
-from ..referents import noun_phrase
+from ..sources.referents import noun_phrase
 from .base import Case, Outcome
 
 __all__ = ["attack_summary", "rule_for", "scatter_by_source", "subject_phrase", "tie_break_by_legacy", "to_unit",
@@ -95,9 +95,9 @@ def scatter_by_source(df: pd.DataFrame, path: str | Path, *, x: str = "source_si
 
     ``series``: optional extra ``(x column, label)`` pairs plotted against ``y`` with other markers
     (e.g. the legacy speed against displacement/Δt and against path/Δt). Drawn by
-    :func:`resti_lib.plots.scatter_panels` (one legend below the panels, no overlapping titles).
+    :func:`resti_lib.io.figures.scatter_panels` (one legend below the panels, no overlapping titles).
     """
-    from ..plots import scatter_panels
+    from ..io.figures import scatter_panels
 
     return scatter_panels(df, path, x=x, y=y, xlabel=xlabel, ylabel=ylabel, title=title, series=series)
 

@@ -42,7 +42,7 @@ from .. import values as V
 from ..adjudicate import Diagnosis, agrees_scalar, compare_scalar
 from ..errors import ContractError
 from ..measure.motion import EST_STORED
-from ..referents import SceneView
+from ..sources.referents import SceneView
 from . import register_task
 from .base import AnswerSpec, Case, Exclude
 from .motion import (

@@ -25,8 +25,8 @@ from .. import values as V
 from ..adjudicate import Diagnosis, Rule
 from ..contract import Contract, base_contract, interval
 from ..errors import ContractError
-from ..figures import save_figure
 from ..geometry.trajectory import PoseTrack
+from ..io.figures import save_figure
 from ..measure.trajectory import describe_motion, track_interval
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Outcome, Task

@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from .errors import BusyError, ContractError, InputError, OutputError, RestiError
+from ..errors import BusyError, ContractError, InputError, OutputError, RestiError
 
 # Exit codes: 0 success; 1 the work ran and found a failure (verify FAILED, a notebook or an invariant
 # failed); 2 bad input or a refused output folder (one line on stderr); 3 the output folder is busy.
@@ -19,14 +19,14 @@ MAX_SKIPPED_SHOWN = 10
 def cli_path(text: str) -> str:
     """A path given on the command line: ``${SHARED}`` expanded, ``~`` expanded, and a relative path
     taken from the current directory (params *files* state their paths from the repository root)."""
-    from . import paths
+    from .. import paths
 
     p = Path(str(text).replace("${SHARED}", str(paths.shared_dir()))).expanduser()
     return str(p if p.is_absolute() else Path.cwd() / p)
 
 
 def _cmd_verify(a) -> int:
-    from .verify import format_text, to_json, verify_path
+    from ..release.verify import format_text, to_json, verify_path
 
     v = verify_path(a.path, legacy=a.legacy)
     print(to_json(v) if a.json else format_text(v))
@@ -37,8 +37,8 @@ def attack_rows(rel) -> tuple[list[dict], dict]:
     """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
     a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
     is not finite or not physically possible)."""
-    from . import LETTERS
-    from .options.checks import ROW_CHECKS, parse_row
+    from .. import LETTERS
+    from ..options.checks import ROW_CHECKS, parse_row
 
     bad: dict = {}
     for p in rel.problems:
@@ -64,9 +64,9 @@ def attack_rows(rel) -> tuple[list[dict], dict]:
 
 
 def _cmd_attack(a) -> int:
-    from .answer_interface import format_headline
-    from .io.benchmark import load_release
-    from .options.attacks import attack_table, headline, select
+    from ..io.benchmark import load_release
+    from ..options.attacks import attack_table, headline, select
+    from ..release.audit import format_headline
 
     try:
         names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
@@ -114,8 +114,8 @@ def _cmd_attack(a) -> int:
 
 
 def _cmd_reoption(a) -> int:
-    from .reoption import reoption_release
-    from .runner import load_params
+    from ..release.reoption import reoption_release
+    from .notebooks import load_params
 
     params = load_params(a.params) if a.params else {}
     seed = a.seed if a.seed is not None else params.get("seed", 0)
@@ -133,13 +133,13 @@ def _cmd_reoption(a) -> int:
 
 
 def _cmd_measure(a) -> int:
-    from .measure import measure_main
+    from ..measure import measure_main
 
     return measure_main(a.rest)
 
 
 def _cmd_synth(a) -> int:
-    from .synth import check_scale, generate
+    from ..synth import check_scale, generate
 
     check_scale(a.scale)
     summary = generate(Path(a.out), seed=a.seed, scale=a.scale)
@@ -156,8 +156,8 @@ def _cmd_run(a) -> int:
 def _stage_help() -> str:
     """The stages of params/default.yaml, for ``resti run --help``."""
     try:
-        from . import paths
-        from .runner import load_params
+        from .. import paths
+        from .notebooks import load_params
 
         stages = load_params(paths.PARAMS / "default.yaml").get("stages") or []
         names = [f"{s['notebook']} ({s['notebook'].split('_', 1)[-1]}{', on demand' if s.get('on_demand') else ''})"
@@ -169,7 +169,7 @@ def _stage_help() -> str:
 
 def _attack_help() -> str:
     """The registered attacks, for ``resti attack --help`` (imports the attack registry)."""
-    from .options.attacks import ATTACKS
+    from ..options.attacks import ATTACKS
 
     return "attacks: " + ", ".join(sorted(ATTACKS))
 
@@ -295,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if argv[:1] == ["measure"]:  # its own parser (and its own --help)
             cmd = "resti measure"
-            from .measure import measure_main
+            from ..measure import measure_main
 
             rc = measure_main(_measure_argv(argv[1:]))
         else:

@@ -1,9 +1,9 @@
 """The HTML audit report: ``<output_dir>/report/index.html``.
 
 The page opens with what the run was made from (input, params digest, code and package versions:
-:mod:`resti_lib.runinfo`), then the headline (our release's counts, verdict shares and defect
+:mod:`resti_lib.run.runinfo`), then the headline (our release's counts, verdict shares and defect
 categories; the answer-interface audit of the reference release, its significant leaks first; the
-self-test, labelled synthetic), the figures in registry order (:data:`resti_lib.figures.FIGURES`)
+self-test, labelled synthetic), the figures in registry order (:data:`resti_lib.report.figures.FIGURES`)
 at full width, the tables of the report's text on the page and every other table linked by
 section, the rendered notebooks and the release files. Links are relative: it opens from disk,
 offline (no script, no remote resource).
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import paths
+from .. import paths
+from ..io.files import atomic_write_bytes
+from ..io.tables import percent, to_html
 from .figures import ordered_figures
-from .io.files import atomic_write_bytes
-from .tables import percent, to_html
 
 CSS = """
 *{box-sizing:border-box}
@@ -336,7 +336,7 @@ def release_html(out_root: Path, report_dir: Path) -> str:
 def write_index(out_root: Path | None = None, *, title: str = "resti audit report",
                 context: dict | None = None, products: set | None = None) -> Path:
     """Write ``<out_root>/report/index.html`` for whatever the run produced. ``context``: the run
-    block (:func:`resti_lib.runinfo.run_context`); default: the one in ``release/release.json``.
+    block (:func:`resti_lib.run.runinfo.run_context`); default: the one in ``release/release.json``.
     ``products``: paths (relative to ``out_root``) the stages of this output folder wrote; figures,
     tables and notebooks not among them (left by older runs) are not listed. Default: all."""
     out_root = Path(out_root or paths.OUTPUTS)

@@ -21,11 +21,11 @@ import stat
 from collections import Counter
 from pathlib import Path
 
-from . import LETTERS, TASKS
-from .errors import InputError
-from .io.benchmark import Release, load_release
-from .io.files import decode_text, file_kind, read_bytes, sha256_file
-from .options.checks import ROW_CHECKS, parse_row
+from .. import LETTERS, TASKS
+from ..errors import InputError
+from ..io.benchmark import Release, load_release
+from ..io.files import decode_text, file_kind, read_bytes, sha256_file
+from ..options.checks import ROW_CHECKS, parse_row
 
 MAX_LISTED = 200  # failing ids listed per check (the count is always complete)
 
@@ -324,7 +324,7 @@ def verify_path(path: str | Path, *, legacy: str | Path | None = None) -> dict:
     rel = load_release(path, strict=False)
     keys = None
     if legacy is not None:
-        from .io.benchmark import load_legacy
+        from ..io.benchmark import load_legacy
 
         df, _ = load_legacy(legacy, strict=False)
         keys = list(df["Legacy Row Key"])

@@ -8,7 +8,7 @@ transform chain, verdict, evidence), ``validation.json`` (``resti verify``), ``r
 Invariants, checked on every run (an :class:`InvariantError` stops the run, nothing is written):
 accepted + excluded == legacy rows; every legacy key exactly once; ids unique; verify passes.
 The files are written by the one release writer (:class:`ReleaseStage` over
-:func:`resti_lib.publish.publishing`), also used by ``resti reoption``: a staging folder beside the
+:func:`resti_lib.release.publish.publishing`), also used by ``resti reoption``: a staging folder beside the
 target, swapped in when complete, so a crash leaves the previous release intact; a target that is
 not a resti output (or is an input) is refused. No timestamps are written: reruns are byte-identical.
 """
@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import LETTERS, TASKS, __version__
-from .errors import InvariantError
-from .io.benchmark import jsonl_text, load_legacy, load_release, rows_to_parquet_bytes
-from .io.files import atomic_write_bytes, read_jsonl, sha256_bytes, write_json_bytes
+from .. import LETTERS, TASKS, __version__
+from ..errors import InvariantError
+from ..io.benchmark import jsonl_text, load_legacy, load_release, rows_to_parquet_bytes
+from ..io.files import atomic_write_bytes, read_jsonl, sha256_bytes, write_json_bytes
+from ..tasks.base import slug
 from .publish import publishing
-from .tasks.base import slug
 from .verify import verify_release
 
 __all__ = ["InvariantError", "ReleaseStage", "assemble", "check_invariants", "collect", "release_stage",
@@ -113,7 +113,7 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
 def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: str = "task") -> dict:
     """The row counts every ``release.json`` carries (``counts``, accepted by source and by task,
     exclusions by task, answer letters), computed once for both layouts (:func:`release_meta` and
-    :func:`resti_lib.reoption.release_meta`). ``excluded_order``: ``task`` (the order of
+    :func:`resti_lib.release.reoption.release_meta`). ``excluded_order``: ``task`` (the order of
     :data:`resti_lib.TASKS`) or ``name``."""
     by_task = Counter(r["Task"] for r in accepted)
     by_source = Counter(r["Source"] for r in accepted)
@@ -134,7 +134,7 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
 def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None
                  ) -> dict:
     """The ``release.json`` object of an assembled release; ``context``: the run that made it, under
-    ``run`` (:func:`resti_lib.runinfo.run_context`: input, params digest, code and package versions)."""
+    ``run`` (:func:`resti_lib.run.runinfo.run_context`: input, params digest, code and package versions)."""
     meta = {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
             **count_fields(accepted, excluded), "artifacts": artifacts}
     if context:
@@ -189,7 +189,7 @@ def failing_checks(validation: dict) -> dict:
 @contextmanager
 def release_stage(out_dir: str | os.PathLike, *, inputs=()):
     """Write a release: yields a :class:`ReleaseStage`; published at ``out_dir`` when the block ends
-    without an error (:func:`resti_lib.publish.publishing`: ours only, locked, atomic swap)."""
+    without an error (:func:`resti_lib.release.publish.publishing`: ours only, locked, atomic swap)."""
     with publishing(out_dir, kind="release", inputs=inputs, what="release folder") as stage:
         yield ReleaseStage(stage)
 
@@ -199,7 +199,7 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
     """Write the release atomically; returns the validation object. The rows carry the options the
     task runs built through the option stage (:mod:`resti_lib.options.stage`); they ship unchanged.
     ``inputs``: paths the release is made from (the release folder may not be one of them, nor hold
-    one); ``context``: the run block of ``release.json`` (:func:`resti_lib.runinfo.run_context`)."""
+    one); ``context``: the run block of ``release.json`` (:func:`resti_lib.run.runinfo.run_context`)."""
     with release_stage(out_dir, inputs=inputs) as st:
         check_invariants(legacy, accepted, excluded)
         order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}

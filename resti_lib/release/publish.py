@@ -9,7 +9,7 @@ into ``stage``; when the block ends without an error the folder is published at 
    output of another kind — is refused with :class:`OutputError`, before any work. ``target`` is
    never an input of the run, nor a folder holding an input, nor a folder inside one.
 2. **One writer.** The block runs under the lock ``<parent>/.<name>.lock``
-   (:mod:`resti_lib.lock`): a second writer of the same folder gets :class:`BusyError`.
+   (:mod:`resti_lib.io.lock`): a second writer of the same folder gets :class:`BusyError`.
 3. **Staging.** ``stage`` is a new folder ``<parent>/.<name>.tmp-<random>`` beside the target
    (same file system), created with the permissions of the process umask; nothing is forced.
 4. **Swap.** The finished stage and the old folder are exchanged in one atomic step where the
@@ -34,9 +34,9 @@ import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import OutputError
-from .io.files import atomic_write_bytes
-from .lock import folder_lock
+from ..errors import OutputError
+from ..io.files import atomic_write_bytes
+from ..io.lock import folder_lock
 
 MARKER = ".resti-output"
 
@@ -60,11 +60,15 @@ def _real(p: str | os.PathLike) -> Path:
     return Path(os.path.realpath(os.path.expanduser(str(p))))
 
 
+# the rebuilder's module name, and its name before the release wing
+_REOPTION_GENERATORS = ("resti_lib.release.reoption", "resti_lib.reoption")
+
+
 def _written_by_resti(kind: str, meta: dict) -> bool:
     if kind == "release":
         gen = str(meta.get("generator", ""))
         re_gen = (meta.get("reoption") or {}).get("generator") if isinstance(meta.get("reoption"), dict) else None
-        return gen.startswith("resti ") or re_gen == "resti_lib.reoption"
+        return gen.startswith("resti ") or re_gen in _REOPTION_GENERATORS
     return meta.get("generator") == "resti_lib.synth"
 
 

@@ -9,12 +9,12 @@ keyed candidate, character for character.
 
 The input is checked first (:func:`check_input`: counts, digests, exclusions); a damaged input is
 refused, never re-issued with fresh checksums. The output is written by the one release writer
-(:func:`resti_lib.release.release_stage`): a staging folder swapped in when complete, never over the
+(:func:`resti_lib.release.assemble.release_stage`): a staging folder swapped in when complete, never over the
 input nor over a folder resti did not write. It holds the three artifacts, ``evaluation_subset.json``
 (a documented subset under which the leaks options cannot remove are at chance,
 :mod:`resti_lib.options.structural`), ``release.json`` (counts, letters, bytes and sha256 of each
 artifact, and the structural leaks with their size), ``SHA256SUMS`` and ``validation.json``
-(:func:`resti_lib.verify.verify_release`). A release that fails verification is not published.
+(:func:`resti_lib.release.verify.verify_release`). A release that fails verification is not published.
 This module also holds the before/after audit helpers of notebook 90.
 """
 
@@ -30,15 +30,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import SOURCES, TASKS, __version__, paths
-from .errors import InputError, OptionError, ReoptionError
-from .figures import save_figure
-from .io.benchmark import jsonl_text, load_release, rows_to_parquet_bytes
-from .io.files import read_bytes, read_jsonl, sha256_bytes
-from .options.learned import LearnedConfig, attack_table_with_learned
-from .options.spec import load_option_params
-from .options.stage import build_options
-from .options.structural import evaluation_subset, structural_leaks
+from .. import SOURCES, TASKS, __version__, paths
+from ..errors import InputError, OptionError, ReoptionError
+from ..io.benchmark import jsonl_text, load_release, rows_to_parquet_bytes
+from ..io.figures import save_figure
+from ..io.files import read_bytes, read_jsonl, sha256_bytes
+from ..options.learned import LearnedConfig, attack_table_with_learned
+from ..options.spec import load_option_params
+from ..options.stage import build_options
+from ..options.structural import evaluation_subset, structural_leaks
 
 DEFAULT_RELEASE = "${SHARED}/data/resti_v5"
 ARTIFACTS = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json")
@@ -65,8 +65,8 @@ def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None
 def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, source_meta: dict | None,
                  source_digests: dict, seed: int, options: dict) -> dict:
     """The ``release.json`` object (no dates or paths, so the same input gives the same bytes); the
-    row counts come from :func:`resti_lib.release.count_fields`, as in an assembled release."""
-    from .release import count_fields
+    row counts come from :func:`resti_lib.release.assemble.count_fields`, as in an assembled release."""
+    from .assemble import count_fields
 
     c = count_fields(rows, excluded, excluded_order="name")
     by_task_letter = {t: {L: int(n) for L, n in sorted(Counter(r["Answer"] for r in rows if r["Task"] == t).items())}
@@ -76,7 +76,7 @@ def release_meta(rows: list[dict], excluded: list[dict], artifacts: dict, *, sou
         "name": sm.get("name", "ReSTI"),
         "version": f"{sm.get('version', 'unknown')}+reoption",
         "derived_from": {"name": sm.get("name"), "version": sm.get("version"), "artifacts": source_digests},
-        "reoption": {"seed": int(seed), "generator": "resti_lib.reoption", "resti_version": __version__,
+        "reoption": {"seed": int(seed), "generator": "resti_lib.release.reoption", "resti_version": __version__,
                      "options": options,
                      "preserved": "row order and every field except Candidates and Answer; the keyed "
                                   "candidate is the Answer Detail string"},
@@ -139,9 +139,9 @@ def check_input(rel) -> None:
 def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str | os.PathLike = "outputs/reoption",
                      *, seed: int = 0, options: dict | None = None) -> ReoptionResult:
     """Read and check a release, rebuild its options, write and verify the new release, publish it
-    atomically (:func:`resti_lib.release.release_stage`: never over the input, nor over a folder
+    atomically (:func:`resti_lib.release.assemble.release_stage`: never over the input, nor over a folder
     that resti did not write)."""
-    from .release import failing_checks, release_stage
+    from .assemble import failing_checks, release_stage
 
     t0 = time.perf_counter()
     src = paths.resolve(release)
@@ -232,7 +232,7 @@ def value_reuse(records: list[dict], *, min_answers: int = 3) -> pd.DataFrame:
             app[(g, s)] += 1
             if L == r["Answer"]:
                 ans[(g, s)] += 1
-    from .options.attacks import binom_p
+    from ..options.attacks import binom_p
 
     out = []
     for (g, s), n in ans.items():
@@ -259,7 +259,7 @@ def write_audit(before: pd.DataFrame, after: pd.DataFrame, out_dir: str | os.Pat
                 ) -> dict:
     """Write the attack tables of input and output, the side-by-side table and the strongest
     attack per task and source (markdown, CSV and LaTeX each); returns the tables."""
-    from .tables import write_table
+    from ..io.tables import write_table
 
     out = paths.resolve(out_dir)
     sb, sa = strongest_by_task(before), strongest_by_task(after)
@@ -280,7 +280,7 @@ def before_after_figure(strongest: pd.DataFrame, path: str | os.PathLike) -> Pat
     beside output, with 95% intervals of the strongest attack's accuracy (chance dashed)."""
     import matplotlib.pyplot as plt
 
-    from .plots import clopper_pearson
+    from ..options.power import clopper_pearson
 
     t = strongest.reset_index(drop=True)
     labels = [f"{a} | {b}" for a, b in zip(t["task"], t["source"])]

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from .io.benchmark import load_release
-from .io.files import atomic_write_bytes
-from .options.attacks import attack_table, headline, select, strongest
-from .tables import write_table
+from ..io.benchmark import load_release
+from ..io.files import atomic_write_bytes
+from ..io.tables import write_table
+from ..options.attacks import attack_table, headline, select, strongest
 from .verify import verify_release
 
 # Reference figures of the report for the rebuilt v5 options (section "Repair: regenerated
@@ -122,8 +122,8 @@ def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05
     cross-validated by ``groups`` (Legacy Row Key -> group; default the source sequence of the video).
     ``families`` None: the option-only rules (and the learned option-only attacker); ``"all"``: the
     full blind suite."""
-    from .io.benchmark import load_legacy
-    from .options.learned import attack_table_with_learned
+    from ..io.benchmark import load_legacy
+    from ..options.learned import attack_table_with_learned
 
     df, _ = load_legacy(legacy, strict=False)
     table = attack_table_with_learned(df.to_dict("records"), alpha=alpha,

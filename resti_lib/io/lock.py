@@ -1,7 +1,7 @@
 """One writer at a time: an advisory lock (``flock``) on a lock file beside what is written.
 
 ``resti run`` holds ``<output_dir>/.resti.lock`` for the whole run; every folder that is published
-(:mod:`resti_lib.publish`: a release, a rebuilt release, the mini-world) is written under
+(:mod:`resti_lib.release.publish`: a release, a rebuilt release, the mini-world) is written under
 ``<parent>/.<name>.lock``. The holder removes the lock file when it is done (a killed holder leaves
 an unlocked file behind, which the next process simply locks). A second process that finds the lock
 held gets a :class:`BusyError` naming the holder (pid, command, start time), or waits when asked to. The kernel releases the lock
@@ -21,8 +21,8 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import BusyError
-from .io.files import default_mode
+from ..errors import BusyError
+from .files import default_mode
 
 try:
     import fcntl

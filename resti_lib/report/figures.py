@@ -1,45 +1,17 @@
-"""Figures: one atomic writer (no import-time side effects on matplotlib's settings) and the
-registry the report page follows (order, section, caption).
+"""The registry the report page follows: order, section and caption of every figure.
 
-Every PNG under ``<output_dir>/figures`` is named after the notebook that writes it. The report
-shows the figures in :data:`FIGURES` order (the audit overview first); a figure that matches no
-entry is shown last under its file name, and a test checks that the default run makes none.
+The report's own figures are listed here; each registered task declares its own
+(:attr:`resti_lib.tasks.base.Task.figures`), shown in the "Tasks" section in task order. A figure
+that matches no entry is shown last under its file name, and a test checks that the default run
+makes none.
 """
 
 from __future__ import annotations
 
 import fnmatch
-import io
-from dataclasses import dataclass
 from pathlib import Path
 
-from .io.files import atomic_write_bytes
-
-
-def save_figure(fig, path: str | Path, *, dpi: float | None = None) -> Path:
-    """Write ``fig`` as PNG to ``path`` (temporary file, then rename), close it, return the path.
-
-    No software tag is written, so the same figure gives the same bytes.
-    """
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    buf = io.BytesIO()
-    kw = {"dpi": dpi} if dpi is not None else {}
-    fig.savefig(buf, format="png", bbox_inches="tight", metadata={"Software": None}, **kw)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
-    return path
-
-
-@dataclass(frozen=True)
-class FigureSpec:
-    """``pattern``: file stem, or a glob of stems; ``section``: heading on the report page."""
-
-    pattern: str
-    section: str
-    caption: str
-
+from ..io.figures import FigureSpec
 
 _ATTACKS = ("accuracy of every option-only (blind) attack per task, pooled over sources, with 95% "
             "Clopper–Pearson intervals; dashed: chance 1/5; red: Holm-significant over the whole table; "

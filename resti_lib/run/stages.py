@@ -25,7 +25,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import paths
+from .. import paths
 from .runinfo import OUTPUT_KEYS, digest, stage_params_digest
 
 STATE_DIR = ".resti"
@@ -266,7 +266,7 @@ class State:
         self.stages.pop(name, None)
 
     def save(self) -> None:
-        from .io.files import atomic_write_bytes
+        from ..io.files import atomic_write_bytes
 
         text = json.dumps(self.data, indent=1, sort_keys=True) + "\n"
         atomic_write_bytes(self.path, text.encode("utf-8"))
@@ -280,7 +280,7 @@ def memo_frame(cache_dir: Path, name: str, key, compute, *, products: tuple = ()
     legacy benchmark when one task's params changed)."""
     import pandas as pd
 
-    from .io.files import atomic_write_bytes
+    from ..io.files import atomic_write_bytes
 
     cache_dir = Path(cache_dir)
     tag = digest([name, key, code_digest()])[:20]

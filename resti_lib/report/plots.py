@@ -1,8 +1,9 @@
-"""Figures. Each function takes computed tables and writes one PNG (non-interactive backend).
+"""The report's figures. Each function takes computed tables and writes one PNG (non-interactive
+backend).
 
 Figures are drawn for the report's full width (about 11 inches at 110 dpi, the width of the index
 page), with constrained layout so titles, labels and legends never overlap; legends sit outside
-the data. Captions and order on the report page: :data:`resti_lib.figures.FIGURES`.
+the data. Captions and order on the report page: :func:`resti_lib.report.figures.figure_specs`.
 """
 
 from __future__ import annotations
@@ -13,42 +14,9 @@ import matplotlib
 import numpy as np
 import pandas as pd
 
-from . import TASKS
-from .figures import save_figure
-
-STYLE = {"figure.dpi": 110, "savefig.dpi": 110, "font.size": 9, "svg.hashsalt": "resti",
-         "axes.spines.top": False, "axes.spines.right": False, "axes.titlesize": 9, "legend.fontsize": 8}
-FULL_WIDTH_IN = 11.0
-
-
-def pyplot():
-    """``matplotlib.pyplot`` on the non-interactive backend (figures are written, never shown)."""
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def styled(fn):
-    """Draw under :data:`STYLE` (a context: importing this module changes no matplotlib setting)."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        with matplotlib.rc_context(STYLE):
-            return fn(*args, **kwargs)
-    return wrapper
-
-
-def clopper_pearson(hits, n, level: float = 0.95):
-    """Exact binomial confidence interval for hits/n (arrays allowed)."""
-    from scipy.stats import beta  # imported here: most figures do not need scipy
-
-    hits, n = np.asarray(hits, float), np.asarray(n, float)
-    a = (1 - level) / 2
-    lo = np.where(hits > 0, beta.ppf(a, np.maximum(hits, 1e-12), n - hits + 1), 0.0)
-    hi = np.where(hits < n, beta.ppf(1 - a, hits + 1, np.maximum(n - hits, 1e-12)), 1.0)
-    return lo, hi
+from .. import TASKS
+from ..io.figures import FULL_WIDTH_IN, pyplot, save_figure, styled
+from ..options.power import clopper_pearson
 
 
 def _save(fig, path: Path) -> Path:
@@ -132,45 +100,3 @@ def audit_overview(coverage: pd.DataFrame, categories: pd.DataFrame, path: Path,
     return _save(fig, path)
 
 
-@styled
-def scatter_panels(df: pd.DataFrame, path: str | Path, *, x: str, y: str, xlabel: str, ylabel: str,
-                   title: str = "", series: list[tuple[str, str]] | None = None,
-                   colors: dict | None = None, group: str = "verdict") -> Path:
-    """Legacy against reconstructed values, one panel per source, coloured by ``group`` (y = x
-    dashed). ``series``: extra ``(x column, label)`` pairs drawn against ``y`` with other markers.
-    One legend for the figure, below the panels."""
-    plt = pyplot()
-    sources = [s for s in ("ScanNet", "Waymo", "Omni6DPose") if s in set(df["source"])] or ["(none)"]
-    fig, axes = plt.subplots(1, len(sources), figsize=(min(FULL_WIDTH_IN, 3.7 * len(sources) + 0.5), 3.9),
-                             squeeze=False, layout="constrained")
-    colors = colors or {"retained": "tab:green", "corrected": "tab:red", "re-contracted": "tab:orange",
-                        "excluded": "grey"}
-    markers = ["o", "^", "s", "x"]
-    pairs = series or [(x, xlabel)]
-    handles: dict[str, object] = {}
-    for ax, src in zip(axes[0], sources):
-        d = df[df["source"] == src]
-        lim = [np.inf, -np.inf]
-        for j, (xc, lab) in enumerate(pairs):
-            for key, g in d.groupby(group):
-                ok = g[[xc, y]].notna().all(axis=1)
-                if not ok.any():
-                    continue
-                gx, gy = g.loc[ok, xc].astype(float), g.loc[ok, y].astype(float)
-                label = f"{key}" + (f" · {lab}" if series else "")
-                h = ax.scatter(gx, gy, s=16, marker=markers[j % len(markers)], color=colors.get(key, "k"),
-                               alpha=0.75, label=label)
-                handles.setdefault(label, h)
-                lim = [min(lim[0], gx.min(), gy.min()), max(lim[1], gx.max(), gy.max())]
-        if np.isfinite(lim).all():
-            pad = 0.05 * (lim[1] - lim[0] + 1e-9)
-            ax.plot([lim[0] - pad, lim[1] + pad], [lim[0] - pad, lim[1] + pad], "k--", lw=0.7)
-        ax.set_title(f"{src} (n={len(d)})")
-        ax.set_xlabel(xlabel if not series else "source value (SI)")
-        ax.set_ylabel(ylabel)
-    if handles:
-        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-                   ncol=min(4, len(handles)), frameon=False)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    return _save(fig, path)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from .io.files import atomic_write_bytes
+from .files import atomic_write_bytes
 
 # Columns holding a fraction of 1, printed as percentages (when every value lies in [0, 1]).
 PERCENT_COLUMNS = frozenset({"share", "recall", "precision", "accuracy", "coverage", "chance", "fraction"})

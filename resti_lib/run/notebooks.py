@@ -15,8 +15,8 @@ from pathlib import Path
 
 import yaml
 
-from . import paths
-from .errors import InputError, NotebookError
+from .. import paths
+from ..errors import InputError, NotebookError
 
 KERNEL = "python3"
 
@@ -81,7 +81,7 @@ def load_params(path: str | Path) -> dict:
     that is not UTF-8 or not valid YAML, or a top level that is not a mapping is an
     :class:`InputError`.
     """
-    from .io.files import read_text
+    from ..io.files import read_text
 
     path = paths.resolve(path)
     if not path.exists():
@@ -165,7 +165,7 @@ def render_html(executed: Path, html_path: Path) -> Path:
     from jinja2 import DictLoader
     from nbconvert import HTMLExporter
 
-    from .io.files import atomic_write_bytes
+    from ..io.files import atomic_write_bytes
 
     exporter = HTMLExporter(template_name="lab", extra_loaders=[DictLoader({"resti.html.j2": _HTML_TEMPLATE})],
                             template_file="resti.html.j2")
@@ -180,9 +180,9 @@ def render_html(executed: Path, html_path: Path) -> Path:
 # it talks over local TCP, and logs the interrupt of its own shutdown; that log goes to the kernel's
 # own file, see _kernel_manager_writing_to, and routine lines would crowd out the ones quoted when it
 # fails), and tables displayed as the report shows them (no index column, shares as percentages:
-# resti_lib.tables.install_display).
+# resti_lib.io.tables.install_display).
 KERNEL_ARGUMENTS = ["--IPKernelApp.log_level=CRITICAL",
-                    "--IPKernelApp.exec_lines=import resti_lib.tables as _rt; _rt.install_display()"]
+                    "--IPKernelApp.exec_lines=import resti_lib.io.tables as _rt; _rt.install_display()"]
 
 
 KERNEL_LOG_TAIL = 1500  # characters of the kernel's own output quoted when the kernel fails
@@ -269,6 +269,6 @@ def strip_outputs(nb_paths: list[str]) -> None:
         nbformat.write(nb, p)
 
 
-if __name__ == "__main__":  # python -m resti_lib.runner --strip notebooks/*.ipynb
+if __name__ == "__main__":  # python -m resti_lib.run.notebooks --strip notebooks/*.ipynb
     if len(sys.argv) > 2 and sys.argv[1] == "--strip":
         strip_outputs(sys.argv[2:])

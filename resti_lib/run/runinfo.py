@@ -16,7 +16,7 @@ import subprocess
 from datetime import UTC, datetime
 from pathlib import Path
 
-from . import __version__, paths
+from .. import __version__, paths
 
 # Versions stated in the header: the libraries whose behaviour can change a number of the audit.
 PACKAGES = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "scikit-learn", "trimesh", "papermill",
@@ -103,7 +103,7 @@ def input_description(cfg: dict) -> dict:
 
 def stage_params_digest(params: dict) -> str:
     """Digest of one stage's merged parameters, output locations left out (the ``params`` part of
-    its stage key, :func:`resti_lib.stages.stage_key`)."""
+    its stage key, :func:`resti_lib.run.stages.stage_key`)."""
     return digest({k: v for k, v in params.items() if k not in OUTPUT_KEYS and k != "run_context"})
 
 
@@ -133,8 +133,8 @@ def default_context(params_file: str | Path | None = None, notebook: str = "99_r
     """The run context of a main params file (default ``params/default.yaml``) for ``notebook`` and
     the stages it needs, from their current params (for a notebook run on its own; ``resti run``
     passes the block itself)."""
-    from .pipeline import closure, plan, stage_params
-    from .runner import load_params
+    from .notebooks import load_params
+    from .plan import closure, plan, stage_params
 
     cfg = load_params(params_file or Path(paths.PARAMS) / "default.yaml")
     stages = cfg.get("stages") or []

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import values as V
-from .errors import InputError
+from .. import values as V
+from ..errors import InputError
 
 
 def load_manifest(path: str | Path) -> pd.DataFrame:

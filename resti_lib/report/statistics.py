@@ -1,7 +1,7 @@
 """The report's statistics tables, computed from a release's provenance (and the legacy benchmark).
 
 Every function returns a DataFrame; ``notebooks/99_release_report.ipynb`` writes them with
-:func:`resti_lib.tables.write_table` (markdown, CSV, LaTeX).
+:func:`resti_lib.io.tables.write_table` (markdown, CSV, LaTeX).
 """
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from collections import Counter
 
 import pandas as pd
 
-from . import SOURCES, TASKS
-from .defects import DEFECTS, REPORT_CATEGORIES
+from .. import SOURCES, TASKS
+from ..defects import DEFECTS, REPORT_CATEGORIES
 
 # the power of the attack tests lives beside the attack table (the options layer cannot import this one)
-from .options.power import (  # noqa: F401
+from ..options.power import (  # noqa: F401
     POWER,
     UNDERPOWERED_AT,
     attack_power,
@@ -181,8 +181,8 @@ KEY_DETAIL_CLASSES = (
 
 def key_detail_class(keyed: str, detail: str) -> str:
     """Why a keyed candidate differs from the Answer Detail (see :data:`KEY_DETAIL_CLASSES`)."""
-    from . import values as V
-    from .errors import InputError
+    from .. import values as V
+    from ..errors import InputError
 
     try:
         k, d = V.parse(keyed), V.parse(detail)
@@ -274,9 +274,9 @@ SCALAR_POOL = "all scalar rows"
 def pooled_scalar_attacks(legacy: pd.DataFrame, *, alpha: float = 0.05) -> pd.DataFrame:
     """Option-only attacks pooled over every legacy row whose five candidates are scalars (all tasks
     together, as the report's "median pick on the legacy scalar rows"), best first."""
-    from . import values as V
-    from .errors import InputError
-    from .options.attacks import attack_table
+    from .. import values as V
+    from ..errors import InputError
+    from ..options.attacks import attack_table
 
     rows = []
     for r in legacy.to_dict("records"):

@@ -49,12 +49,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from .defaults import setting
-from .errors import ContractError, InputError
-from .geometry import trajectory as G
-from .geometry.boxes import OrientedBox, upright_oriented_box
-from .geometry.frames import apply_T, invert_T, make_T
-from .sources.context import derived
+from ..defaults import setting
+from ..errors import ContractError, InputError
+from ..geometry import trajectory as G
+from ..geometry.boxes import OrientedBox, upright_oriented_box
+from ..geometry.frames import apply_T, invert_T, make_T
+from .context import derived
 
 __all__ = [
     "CUT_WORDS",
