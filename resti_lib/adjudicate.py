@@ -41,6 +41,11 @@ class Rule:
     abs_tol: float = 0.0
     rel_tol: float = 0.0
 
+    def tolerance(self, value: float, ulp: float) -> float:
+        """How far two values near ``value`` may differ and still agree: half a printed unit ``ulp``
+        (both in the same unit) + ``abs_tol`` + ``rel_tol``·|value|."""
+        return 0.5 * ulp + self.abs_tol + self.rel_tol * abs(value)
+
     def describe(self) -> str:
         return (f"agree within half a unit of the coarser printed place + {self.abs_tol:g} "
                 f"+ {self.rel_tol:g}·|value|")
@@ -50,8 +55,12 @@ class Rule:
 
 
 def rule_for(params: dict, source: str, key: str = "rule") -> Rule:
-    """The comparison rule of a source: params ``rule`` = ``{abs_tol, rel_tol}`` or per-source dicts."""
-    r = params.get(key) or {}
+    """The comparison rule of a source: params ``key`` = ``{abs_tol, rel_tol}``, per-source dicts of
+    those, or one number (an absolute tolerance)."""
+    r = params.get(key)
+    if isinstance(r, (int, float)) and not isinstance(r, bool):
+        return Rule(abs_tol=float(r))
+    r = r or {}
     if source in r and isinstance(r[source], dict):
         r = r[source]
     return Rule(abs_tol=float(r.get("abs_tol", 0.0)), rel_tol=float(r.get("rel_tol", 0.0)))
@@ -264,27 +273,27 @@ def _symmetric_grid(o: LegacyOptions) -> dict | None:
 
 @answer_check("orientation_smallest_correct", scope="group")
 def _smallest_correct(rows: list[dict], *, min_rows: int = 5, share: float = 0.9) -> dict[int, dict]:
-    """In a (task, source) group of Orientation rows where the detail is the smallest candidate in
-    at least ``share`` of at least ``min_rows`` rows, every such row carries the shortcut: a
-    property of the construction, not of one row."""
+    """In a (task, source) group of angle answers (heading changes) where the detail is the
+    smallest candidate in at least ``share`` of at least ``min_rows`` rows, every such row carries
+    the shortcut: a property of the construction, not of one row. Keyed by the answer kind (an
+    angle), not by a task."""
     out: dict[int, dict] = {}
-    groups: dict[tuple, list[int]] = {}
+    groups: dict[tuple, list[tuple[int, float, dict]]] = {}
     for i, r in enumerate(rows):
-        groups.setdefault((r.get("Task"), r.get("Source")), []).append(i)
-    for (task, _source), idx in groups.items():
-        if task != "Ego-Centric Orientation" or len(idx) < min_rows:
+        try:
+            d = V.parse(r["Answer Detail"])
+            vals = {k: V.parse(s) for k, s in r["Candidates"].items()}
+        except (InputError, AttributeError, KeyError, TypeError):
             continue
-        smallest = []
-        for i in idx:
-            r = rows[i]
-            try:
-                vals = {k: V.parse(s).value for k, s in r["Candidates"].items()}
-                d = V.parse(r["Answer Detail"]).value
-            except (InputError, AttributeError, KeyError):
-                continue
-            if d <= min(vals.values()) + 1e-9:
-                smallest.append(i)
-        if len(smallest) >= share * len(idx):
+        if not (isinstance(d, V.Scalar) and d.is_angle and vals
+                and all(isinstance(v, V.Scalar) and v.is_angle for v in vals.values())):
+            continue
+        groups.setdefault((r.get("Task"), r.get("Source")), []).append((i, d.value, vals))
+    for members in groups.values():
+        if len(members) < min_rows:
+            continue
+        smallest = [i for i, d, vals in members if d <= min(v.value for v in vals.values()) + 1e-9]
+        if len(smallest) >= share * len(members):
             for i in smallest:
                 out[i] = {}
     return out

@@ -112,11 +112,11 @@ MAIN_RUN_UMASK = 0o002  # not the usual 022: outputs must follow the umask, not 
 
 
 def main_params(miniworld: Path, out: Path, *, stage_params: dict | None = None) -> dict:
-    """params/default.yaml pointed at a generated mini-world and an output folder; ``stage_params``
-    replaces the params file of named stages."""
-    import yaml
+    """params/default.yaml pointed at a generated mini-world and an output folder, its stage list in
+    full (the task stages included); ``stage_params`` replaces the params file of named stages."""
+    from resti_lib.run.plan import main_config
 
-    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg = main_config()
     cfg.update(world_dir=str(miniworld), legacy_benchmark=str(miniworld / "legacy" / "qa.parquet"),
                scannet_root=str(miniworld / "scannet" / "scans"), waymo_root=str(miniworld / "waymo"),
                omni6d_root=str(miniworld / "omni6d"), output_dir=str(out))

@@ -11,7 +11,12 @@ import yaml
 from resti_lib import paths
 from resti_lib.geometry import trajectory as G
 from resti_lib.sources.waymo import WaymoSegment
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks.run import run_task
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 
 def miniworld_params(world: Path, output_dir: Path, **extra) -> dict:
@@ -73,7 +78,7 @@ def exclusion_problems(run) -> list:
 def significant_attacks(run) -> list[dict]:
     from resti_lib.options.attacks import attack_table
 
-    table = attack_table(run.result.accepted)
+    table = attack_table(iface=IFACE, records=run.result.accepted)
     return table[table["significant"]].to_dict("records")
 
 
@@ -153,7 +158,7 @@ def structural_failures(run) -> list[tuple]:
 
     out = []
     for r in run.result.accepted:
-        p = parse_row(r, r["ReSTI ID"])
+        p = parse_row(r, r["ReSTI ID"], IFACE)
         for name, fn in ROW_CHECKS.items():
             msg = fn(p)
             if msg:

@@ -9,7 +9,12 @@ from pathlib import Path
 from resti_lib import values as V
 from resti_lib.defects import DEFECTS, REASONS
 from resti_lib.options.attacks import attack_table
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks.run import TaskRun, run_task
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 ANSWER_LAYER = {c for c, d in DEFECTS.items() if d.layer == "answer"}
 
@@ -88,7 +93,7 @@ def check_exclusions(mr: MiniRun) -> None:
 
 def check_attacks(mr: MiniRun, allowed: tuple = ()) -> None:
     """No Holm-significant option-only attack on the rebuilt options, per source and pooled."""
-    tab = attack_table(mr.run.result.accepted)
+    tab = attack_table(iface=IFACE, records=mr.run.result.accepted)
     sig = tab[tab["significant"] & ~tab["attack"].isin(allowed)]
     assert sig.empty, sig.to_string()
 

@@ -9,8 +9,13 @@ import pytest
 from resti_lib.options.attacks import FAMILIES, attack_table, headline
 from resti_lib.options.learned import LearnedConfig
 from resti_lib.run.cli import main as cli_main
+from resti_lib.tasks import interface as _interface
 from tests.attack_release import CELL_ROWS, PLANTS, ROWS_PER_VIDEO, release_rows
 from tests.helpers import write_release
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 FAST_LEARNED = LearnedConfig(max_iter=40, learning_rate=0.15)
 
@@ -30,7 +35,7 @@ PLANTED = {
 
 @pytest.fixture(scope="module")
 def clean():
-    return attack_table(release_rows(None, seed=0), families="all", learned=FAST_LEARNED)
+    return attack_table(iface=IFACE, records=release_rows(None, seed=0), families="all", learned=FAST_LEARNED)
 
 
 @pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
@@ -45,7 +50,7 @@ def test_clean_control_has_no_false_alarm(clean):
 @pytest.mark.parametrize("plant", PLANTS)
 def test_family_finds_its_planted_tell(plant):
     family, name, task, acc = PLANTED[plant]
-    t = attack_table(release_rows(plant, seed=0), families="all", fast=True)
+    t = attack_table(iface=IFACE, records=release_rows(plant, seed=0), families="all", fast=True)
     hit = t[(t["attack"] == name) & (t["task"] == task) & (t["source"] != "ALL")].iloc[0]
     assert hit["family"] == family and hit["significant"], hit
     assert hit["n_rows"] == CELL_ROWS
@@ -64,7 +69,8 @@ def _displacement(plant, seed):
 
 @pytest.mark.parametrize("plant,name", [("option", "learned_blind"), ("question", "learned_question")])
 def test_learned_families_find_planted_tells(plant, name):
-    t = attack_table(_displacement(plant, 1), families=("learned_option", "learned_question"), learned=FAST_LEARNED)
+    t = attack_table(iface=IFACE, records=_displacement(plant, 1), families=("learned_option", "learned_question"),
+                     learned=FAST_LEARNED)
     hit = t[(t["attack"] == name) & (t["task"] == "Displacement & Path Length") & (t["source"] == "ScanNet")].iloc[0]
     assert hit["significant"] and hit["accuracy"] > 0.3, hit
 
@@ -72,7 +78,7 @@ def test_learned_families_find_planted_tells(plant, name):
 def test_learned_question_reads_the_window_that_options_alone_lack():
     """The question plant: the answer implies a speed of ~0.3 m/s over its window, the distractors are drawn
     without the window. The value range alone tells little; the value over the window tells all."""
-    t = attack_table(_displacement("question", 2), families=("learned_option", "learned_question"),
+    t = attack_table(iface=IFACE, records=_displacement("question", 2), families=("learned_option", "learned_question"),
                      learned=FAST_LEARNED)
     cell = t[(t["task"] == "Displacement & Path Length") & (t["source"] == "ScanNet")].set_index("attack")
     assert cell.loc["learned_question", "accuracy"] > cell.loc["learned_blind", "accuracy"] + 0.1

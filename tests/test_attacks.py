@@ -20,7 +20,12 @@ from resti_lib.options.attacks import (
     tie_aware_p,
 )
 from resti_lib.report.statistics import critical_hits, min_detectable_accuracy
+from resti_lib.tasks import interface as _interface
 from tests.helpers import row
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 
 def picks_of(rows, names, direction=""):
@@ -66,7 +71,7 @@ def test_ties_are_scored_by_expected_accuracy():
 
 def test_constant_letter_and_binomial():
     rows = [row(rid=i, answer=a) for i, a in enumerate("AAB")]
-    t = attack_table(rows, attacks=["constant_letter"])
+    t = attack_table(iface=IFACE, records=rows, attacks=["constant_letter"])
     allrow = t[(t["source"] == "ALL")].iloc[0]
     assert allrow["hits"] == 2 and allrow["picked"] == 3
     # P[X>=2 | n=3, 1/5] = 3*(1/5)^2*(4/5) + (1/5)^3 = 0.104, times 5 letters (Bonferroni)
@@ -78,7 +83,7 @@ def test_label_prior_is_the_best_constant_label():
     rows = [row(task="Spatial Relation", source="Waymo", rid=i, cands=cands, answer=a)
             for i, a in enumerate(["A", "A", "B"])]
     assert picks_of(rows, ["label_prior"], direction="Front")[("label_prior", 2)] == "A"
-    t = attack_table(rows, attacks=["label_prior"]).set_index("source")
+    t = attack_table(iface=IFACE, records=rows, attacks=["label_prior"]).set_index("source")
     # Front is the answer twice of three: P[X >= 2 | n=3, 1/5] = 0.104, times 5 labels tried (Bonferroni)
     assert t.loc["Waymo", "direction"] == "Front" and t.loc["Waymo", "hits"] == 2
     assert t.loc["Waymo", "p_value"] == pytest.approx(5 * 0.104)
@@ -97,7 +102,7 @@ def test_label_prior_test_is_exact_on_uniform_labels():
             cands = {k: labels[j] for k, j in zip("ABCDE", order)}
             rows.append(row(task="Spatial Relation", source="Waymo", rid=i, cands=cands,
                             answer="ABCDE"[rng.integers(5)]))
-        t = attack_table(rows, attacks=["label_prior"])
+        t = attack_table(iface=IFACE, records=rows, attacks=["label_prior"])
         small += int(t[t["source"] == "Waymo"]["p_value"].iloc[0] < 0.1)
     assert small <= 6 + 4  # at most 10% of 60 below 0.1, plus sampling slack (binomial sd 2.3)
 
@@ -127,7 +132,7 @@ def test_letter_order_finds_distractors_listed_outwards():
         rows.append(row(rid=i, cands={k: f"{v:.2f}m" for k, v in zip("ABCDE", vals)}, answer="ABCDE"[pos]))
     p = picks_of(rows, ["letter_order"], direction="max")
     assert all(p[("letter_order", i)] == r["Answer"] for i, r in enumerate(rows))
-    t = attack_table(rows, attacks=["letter_order"]).set_index("source")
+    t = attack_table(iface=IFACE, records=rows, attacks=["letter_order"]).set_index("source")
     # the table keeps the best of the 5 directions: 6/6 hits, p = 5 * 0.2**6 (Bonferroni over directions)
     assert t.loc["ScanNet", "direction"] == "max" and t.loc["ScanNet", "hits"] == 6
     assert t.loc["ScanNet", "p_value"] == pytest.approx(5 * 0.2 ** 6)
@@ -198,7 +203,7 @@ def test_power_by_hand():
 def test_table_states_power_per_cell():
     rows = [row(rid=i, answer="ABCDE"[i % 5], cands={k: f"{(j + 1) * (i + 1) / 10:.2f}m" for j, k in
                                                      enumerate("ABCDE")}) for i in range(40)]
-    t = attack_table(rows)
+    t = attack_table(iface=IFACE, records=rows)
     level = 0.05 / len(t)
     assert np.allclose(t["min_detectable"], min_detectable_accuracy(40, level))
     assert t["underpowered"].all()  # 40 rows cannot detect a 35% blind accuracy at this level
@@ -219,7 +224,7 @@ def test_select_and_unknown_names():
 def test_v5_orientation_matches_report(resti_v5_dir):
     rows = [json.loads(line) for line in (resti_v5_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
     ranks = ["min", "rank_2", "median", "rank_4", "max"]
-    t = attack_table(rows, attacks=ranks)
+    t = attack_table(iface=IFACE, records=rows, attacks=ranks)
     o = t[(t["task"] == "Ego-Centric Orientation") & (t["source"] == "ALL")].set_index("attack")
     assert (o.loc["median", "hits"], o.loc["median", "picked"]) == (37, 185)
     assert o.loc[ranks, "hits"].max() == 38
@@ -242,7 +247,7 @@ def test_v5_letter_order_reveals_the_answer(resti_v5_dir):
         d = [abs(x[j] - x[a]) for j in range(5) if j != a]
         monotone += all(d[i] < d[i + 1] for i in range(3)) or all(d[i] > d[i + 1] for i in range(3))
     assert monotone > 100  # of 185: chance for one candidate is 2/24
-    t = headline(attack_table(rows, families="option"))
+    t = headline(attack_table(iface=IFACE, records=rows, families="option"))
     cell = t.set_index("source").loc["ALL"]
     assert cell["significant"] and cell["attack"] == "letter_order" and cell["accuracy"] > 0.55
 

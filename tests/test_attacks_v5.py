@@ -10,6 +10,16 @@ import pytest
 
 from resti_lib import values as V
 from resti_lib.options.attacks import attack_table, headline
+from resti_lib.tasks import interface as _interface
+
+IFACE = _interface()
+
+
+def _obs(r: dict):
+    """The observables of a row, its quantity read by its task."""
+    from resti_lib.options.observables import observables_of
+
+    return observables_of(r, IFACE.quantity_of(r["Task"], r["Question"]))
 
 pytestmark = [pytest.mark.shared, pytest.mark.slow]
 
@@ -22,7 +32,7 @@ def v5_rows(resti_v5_dir):
 
 @pytest.fixture(scope="module")
 def v5_table(v5_rows):
-    return attack_table(v5_rows, families="all")
+    return attack_table(iface=IFACE, records=v5_rows, families="all")
 
 
 def _sig(table, attack, task, source):
@@ -94,13 +104,12 @@ def test_learned_question_attacker_reaches_the_small_cells(v5_rows, v5_table):
 def test_implied_rate_is_a_speed_over_the_window(v5_rows):
     """A Displacement distractor implies a speed over the question's window; on v5 the window is stated in
     every Displacement question and the implied speeds of answers stay physical."""
-    from resti_lib.options.observables import observables_of
     from resti_lib.options.readers import implied_rate
 
     speeds = []
     for r in v5_rows:
         if r["Task"] == "Displacement & Path Length" and r["Source"] == "Waymo":
-            o = observables_of(r)
+            o = _obs(r)
             assert o.window_s and o.window_s > 0
             kind, v = implied_rate(V.parse(r["Answer Detail"]), o)
             assert kind == "speed"

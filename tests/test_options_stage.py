@@ -20,6 +20,9 @@ from resti_lib import values as V
 from resti_lib.options.checks import ROW_CHECKS, parse_row
 from resti_lib.options.stage import build_options, rotation_preimage
 from resti_lib.options.structural import evaluation_subset, structural_leaks
+from resti_lib.tasks import interface as _interface
+
+IFACE = _interface()
 
 
 def _row(i, task, source, question, detail, video=None, t0=0.0, t1=5.0, labels=None):
@@ -59,7 +62,7 @@ def _implied_rate_attack(rows, windows) -> float:
 
 def test_displacements_conditioned_on_the_window_defeat_the_implied_rate():
     rows, windows = _displacement_rows()
-    out, ev, _ = build_options(rows, seed=0)
+    out, ev, _ = build_options(iface=IFACE, records=rows, seed=0)
     acc = _implied_rate_attack(out, windows)
     assert binomtest(round(acc * len(out)), len(out), 0.2, alternative="greater").pvalue > 0.01, acc
     # the same attack against distractors drawn from the population of displacements, ignoring the
@@ -85,19 +88,19 @@ def test_orientation_options_at_least_one_degree_apart():
          "heading change of the camera?")
     rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(float(rng.normal(0, 3.0))), t1=19.8)
             for i in range(80)]
-    out, _, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     for r in out:
         a = np.array([V.parse(s).value for s in r["Candidates"].values()])
         d = np.abs((a[:, None] - a[None, :] + 180.0) % 360.0 - 180.0)
         assert d[np.triu_indices(5, 1)].min() >= 1.0 - 1e-9, r["Candidates"]
         assert all(-180.0 <= x < 180.0 for x in a)
-        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"])) is None
+        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"], IFACE)) is None
     # a planted pair half a degree apart is named by the separation check
     bad = dict(out[0])
     vals = sorted(V.parse(s).value for s in bad["Candidates"].values())
     other = next(L for L, s in bad["Candidates"].items() if L != bad["Answer"])
     bad["Candidates"] = {**bad["Candidates"], other: V.format_angle(V.parse(bad["Answer Detail"]).value + 0.5)}
-    assert vals and "closer than the floor" in ROW_CHECKS["separation"](parse_row(bad, "x"))
+    assert vals and "closer than the floor" in ROW_CHECKS["separation"](parse_row(bad, "x", IFACE))
 
 
 def _box_rows(n=160, seed=3):
@@ -119,7 +122,7 @@ def _box_rows(n=160, seed=3):
 
 def test_box_edges_drawn_jointly():
     rows, logd, cov = _box_rows()
-    out, _, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     dist = np.array([np.log(V.parse(s).lwh) for r in out for L, s in r["Candidates"].items() if L != r["Answer"]])
     corr = np.corrcoef(dist, rowvar=False)
     assert corr[0, 1] > 0.6 and corr[0, 2] > 0.6, corr
@@ -134,8 +137,8 @@ def test_box_edges_drawn_jointly():
         hits += (r["Answer"] in [L for L, v in sc.items() if v == best])
     assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
     for r in out:
-        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"])) is None
-        assert ROW_CHECKS["format_consistency"](parse_row(r, r["ReSTI ID"])) is None
+        assert ROW_CHECKS["separation"](parse_row(r, r["ReSTI ID"], IFACE)) is None
+        assert ROW_CHECKS["format_consistency"](parse_row(r, r["ReSTI ID"], IFACE)) is None
 
 
 def test_poses_drawn_as_motion_from_the_premise():
@@ -159,7 +162,7 @@ def test_poses_drawn_as_motion_from_the_premise():
         rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
                          video=f"seg{i}_camera_1.mp4", t0=1 + w, t1=1 + w))
         prem.append((V.parse(ptxt).matrix, w))
-    out, _, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     hits_near, hits_rate = 0.0, 0.0
     for r, (P, w) in zip(out, prem):
         d = {L: np.linalg.norm(np.array(V.parse(s).t) - P[:3, 3]) for L, s in r["Candidates"].items()}
@@ -169,7 +172,7 @@ def test_poses_drawn_as_motion_from_the_premise():
     for hits in (hits_near, hits_rate):
         assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
     for r in out:
-        p = parse_row(r, r["ReSTI ID"])
+        p = parse_row(r, r["ReSTI ID"], IFACE)
         assert ROW_CHECKS["separation"](p) is None  # includes: no two candidates print one rotation
         assert ROW_CHECKS["plausible_given_question"](p) is None
         assert ROW_CHECKS["format_consistency"](p) is None
@@ -191,7 +194,7 @@ def test_rows_of_one_video_asking_one_answer_share_their_candidates():
     rows = [_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(float(rng.uniform(0.3, 2.0)), "m"),
                  video=f"scene{i % 20:04d}_00.mp4") for i in range(40)]
     rows.append({**rows[3], "ReSTI ID": "dup", "Legacy Row Key": "kdup", "time_start": 9.0, "time_end": 9.0})
-    out, _, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     assert sorted(out[3]["Candidates"].values()) == sorted(out[-1]["Candidates"].values())
 
 
@@ -199,10 +202,10 @@ def test_plausibility_and_format_checks_name_the_failing_candidate():
     q = "What is the displacement (straight-line distance) of the camera between t=2 s and t=2.1 s? (unit: m)"
     r = _row(0, "Displacement & Path Length", "Waymo", q, "1.20m", video="seg_camera_1.mp4", t0=2.0, t1=2.1)
     r["Candidates"] = {"A": "1.20m", "B": "0.80m", "C": "71.00m", "D": "2.40m", "E": "3.10m"}
-    msg = ROW_CHECKS["plausible_given_question"](parse_row(r, "r0"))
+    msg = ROW_CHECKS["plausible_given_question"](parse_row(r, "r0", IFACE))
     assert msg and msg.startswith("C:") and "71.00m" in msg
     r["Candidates"] = {"A": "1.20m", "B": "0.80m", "C": "1.700m", "D": "2.40m", "E": "3.10m"}
-    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0"))
+    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0", IFACE))
     assert msg and "C:" in msg
 
 
@@ -213,17 +216,17 @@ def test_repeated_answers_still_get_valid_options():
     q = "What is the magnitude of the average velocity of the camera between t=3 s and t=9 s? (unit: m/s)"
     rows = [_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(base[i % 60], "m/s"),
                  video=f"seg{i}_camera_1.mp4", t0=3.0, t1=9.0) for i in range(120)]
-    out, _, _ = build_options(rows, seed=0)
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     for r in out:
-        p = parse_row(r, r["ReSTI ID"])
+        p = parse_row(r, r["ReSTI ID"], IFACE)
         assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["distinct_strings"](p) is None
 
 
 def test_same_input_and_seed_same_options():
     rows, _ = _displacement_rows(60)
-    a, _, _ = build_options(rows, seed=1)
-    b, _, _ = build_options(rows, seed=1)
-    c, _, _ = build_options(rows, seed=2)
+    a, _, _ = build_options(iface=IFACE, records=rows, seed=1)
+    b, _, _ = build_options(iface=IFACE, records=rows, seed=1)
+    c, _, _ = build_options(iface=IFACE, records=rows, seed=2)
     assert json.dumps(a) == json.dumps(b) and json.dumps(a) != json.dumps(c)
 
 
@@ -236,16 +239,16 @@ def test_structural_leaks_and_evaluation_subset():
     for i, cam in enumerate(plan):
         rows.append(_row(i, "Spatial Relation", "Waymo", q, cams[cam], video=f"seg{i}_camera_{cam}.mp4",
                          labels=labels))
-    leaks = structural_leaks(rows)
+    leaks = structural_leaks(rows, IFACE)
     prior = leaks[leaks["leak"] == "label_prior"].iloc[0]
     assert prior["accuracy_on_affected"] == pytest.approx(20 / 40)
     meta = leaks[leaks["leak"] == "metadata"].iloc[0]
     assert meta["accuracy_on_affected"] == pytest.approx(1.0)  # the camera names the label
-    sub = evaluation_subset(rows, leaks)
+    sub = evaluation_subset(rows, IFACE, leaks)
     assert sub["n_kept"] == 0 and sub["dropped_by_reason"] == {"metadata": 40}
     # without the camera in the name, the subset balances the labels to the rarest one
     rows2 = [{**r, "Video": f"seg{i}.mp4"} for i, r in enumerate(rows)]
-    sub2 = evaluation_subset(rows2)
+    sub2 = evaluation_subset(rows2, IFACE)
     kept = [r["Answer Detail"] for r in rows2 if r["ReSTI ID"] in set(sub2["ids"])]
     assert sorted(kept) == sorted(labels * 5)
 
@@ -264,8 +267,8 @@ def test_format_check_reads_an_ill_conditioned_heading():
          "(+X right, +Y down, +Z forward)?")
     r = _row(0, "3D Video Grounding", "Waymo", q, boxes[0], t0=3.0, t1=3.0)
     r["Candidates"] = dict(zip(LETTERS, boxes))
-    assert ROW_CHECKS["format_consistency"](parse_row(r, "r0")) is None
+    assert ROW_CHECKS["format_consistency"](parse_row(r, "r0", IFACE)) is None
     # a candidate printed with a fourth decimal in its centre is named
     r["Candidates"]["C"] = r["Candidates"]["C"].replace("[-1.1,", "[-1.1004,")
-    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0"))
+    msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0", IFACE))
     assert msg and msg.startswith("C:")

@@ -8,8 +8,13 @@ import pytest
 
 from resti_lib.io.benchmark import load_legacy
 from resti_lib.release.assemble import InvariantError, assemble, collect, write_release
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks.base import AnswerSpec, Outcome, finalize, slug, write_task_outputs
 from tests.helpers import row, write_legacy
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 TASK = "Displacement & Path Length"
 
@@ -29,7 +34,7 @@ def _world(tmp_path, n=12):
         if r["row"] % 4 == 3:
             o.exclude("zero_length_interval", t0=0.0, t1=0.0)
         outcomes.append(o)
-    res = finalize(outcomes, mine, seed=0)
+    res = finalize(outcomes, mine, seed=0, iface=IFACE)
     write_task_outputs(res, tmp_path / "out" / "tasks" / slug(TASK))
     return legacy_path, legacy
 
@@ -76,7 +81,7 @@ def test_lost_row_is_an_error_and_previous_release_survives(tmp_path):
     rel = tmp_path / "out" / "release"
     assemble(legacy_path, tmp_path / "out" / "tasks", rel)
     before = {p.name: p.read_bytes() for p in rel.iterdir()}
-    acc, exc, prov = collect(tmp_path / "out" / "tasks", legacy)
+    acc, exc, prov, _ = collect(tmp_path / "out" / "tasks", legacy)
     with pytest.raises(InvariantError, match="lost"):
         write_release(acc[1:], exc, prov, legacy, rel)
     with pytest.raises(InvariantError, match="twice"):

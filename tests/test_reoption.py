@@ -26,7 +26,12 @@ from resti_lib.options.stage import constrained_schedule
 from resti_lib.release import reoption as RO
 from resti_lib.release.verify import verify_path
 from resti_lib.run.cli import main as cli_main
+from resti_lib.tasks import interface as _interface
 from tests.helpers import row, seal_release, write_release
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 FILES = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json", "release.json", "SHA256SUMS",
          "validation.json")
@@ -216,7 +221,7 @@ def test_learned_attacker_at_chance_on_exchangeable_rows():
     hits, n = int(picks["hit"].sum()), int(picks["pick"].notna().sum())
     assert n >= 390 and 0.13 < hits / n < 0.27
     assert binom_p(hits, n) > 1e-3
-    table = attack_table_with_learned(rows, learned=LearnedConfig(max_iter=60))
+    table = attack_table_with_learned(iface=IFACE, records=rows, learned=LearnedConfig(max_iter=60))
     assert not table["significant"].any()
 
 
@@ -353,9 +358,9 @@ def test_v5_balanced_letters_and_ranks(rebuilt):
 @pytest.mark.shared
 @pytest.mark.slow
 def test_v5_no_significant_attack_after(rebuilt):
-    before = attack_table(rebuilt.before)
+    before = attack_table(iface=IFACE, records=rebuilt.before)
     assert before["significant"].any()  # the input leaks (Pose centroid/medoid, Speed min, ...)
-    after = attack_table(rebuilt.rows, families="all")  # every blind channel, learned ones included
+    after = attack_table(iface=IFACE, records=rebuilt.rows, families="all")  # every blind channel, learned ones included
     sig = after[after["significant"]]
     # what options cannot remove is named, with its size, beside the release; every significant
     # cell lies in a named one (a pooled ALL row in a task with a named cell)

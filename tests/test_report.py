@@ -181,7 +181,7 @@ def test_pooled_scalar_attacks_median_pick():
 
 
 def test_figure_registry_order_and_captions(tmp_path):
-    from resti_lib.report.figures import FIGURES, ordered_figures
+    from resti_lib.report.figures import figure_specs, ordered_figures
 
     for name in ("07_trajectory_paths", "zz_other", "99_attacks_after", "99_audit_overview",
                  "00_answer_interface_attacks_resti_v5"):
@@ -189,7 +189,7 @@ def test_figure_registry_order_and_captions(tmp_path):
     order = [(p.stem, spec.section if spec else None) for p, spec in ordered_figures(tmp_path)]
     assert order == [("99_audit_overview", "Overview"), ("00_answer_interface_attacks_resti_v5", "Answer interface"),
                      ("99_attacks_after", "Answer interface"), ("07_trajectory_paths", "Tasks"), ("zz_other", None)]
-    assert all(len(s.caption) > 40 for s in FIGURES)
+    assert all(len(s.caption) > 40 for s in figure_specs())
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ import yaml
 
 from resti_lib import paths
 from resti_lib.errors import InputError
-from resti_lib.run.plan import downstream, match_only, plan
+from resti_lib.run.plan import downstream, main_config, match_only, plan
 from resti_lib.run.stages import Fingerprints, State, fingerprint, scan, stage_key
 
 TASK_STAGES = ["01_grounding", "02_orientation", "03_dimensional", "04_relation", "05_displacement", "06_speed",
@@ -17,7 +17,7 @@ TASK_STAGES = ["01_grounding", "02_orientation", "03_dimensional", "04_relation"
 
 @pytest.fixture
 def default_stages():
-    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg = main_config()
     return cfg["stages"], {k: v for k, v in cfg.items() if k != "stages"}
 
 
@@ -120,7 +120,7 @@ def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, mon
         return NotebookRun(nb.stem, out_dir / nb.name, html_dir / f"{nb.stem}.html", 0.01)
 
     monkeypatch.setattr(P, "run_notebook", fake_run_notebook)
-    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg = main_config()
     for k in ("world_dir", "legacy_benchmark"):
         cfg.pop(k)
     grounding = tmp_path / "grounding.yaml"

@@ -20,9 +20,14 @@ from resti_lib.sources.referents import resolve
 from resti_lib.sources.scannet import ScanNetScene
 from resti_lib.sources.waymo import WaymoSegment
 from resti_lib.tasks import grounding as G
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks import read_contract
 from resti_lib.tasks.run import audit_row
 from tests.task_checks import check_defects, check_values, run_on_miniworld
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 TASK = "3D Video Grounding"
 
@@ -392,7 +397,7 @@ def test_questions_state_the_contract(mini):
 
 
 def test_no_significant_option_only_attack(mini):
-    table = attack_table(mini.run.result.accepted)
+    table = attack_table(iface=IFACE, records=mini.run.result.accepted)
     assert not table["significant"].any(), table[table["significant"]]
     full = table[(table["source"] == "ALL") & (table["coverage"] == 1.0)]
     assert {"field_majority", "centroid_center", "medoid_all", "shortest_string"} <= set(table["attack"])

@@ -11,63 +11,17 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
 import pandas as pd
 import pytest
 
 from resti_lib import values as V
-from resti_lib.adjudicate import Rule
-from resti_lib.contract import Contract, base_contract, instant
-from resti_lib.errors import ContractError
-from resti_lib.geometry import trajectory as G
 from resti_lib.io.benchmark import legacy_row_keys
-from resti_lib.measure import MeasureContext, evaluate_contract, register_operator
-from resti_lib.tasks import register_task, task_for
-from resti_lib.tasks.base import AnswerSpec, Case, Exclude, Task
+from resti_lib.measure import evaluate_contract
+from resti_lib.tasks import interface, task_for
 from resti_lib.tasks.run import run_rows
 from tests.helpers import row
 from tests.test_sources_scannet import SCENE, write_scene
-
-TOY = "Toy Camera Range"
-
-
-@register_operator("toy_camera_range", unit="m", n_times=(1,), entities=("camera",))
-def _op_toy_range(ctx: MeasureContext):
-    """Distance of the camera centre from the world origin at ``times[0]`` (m)."""
-    et = ctx.entity_track()
-    T, ev = G.pose_at(et.track, ctx.t0, ctx.rule, ctx.tol)
-    ev["files"] = et.track.source
-    return float(np.linalg.norm(T[:3, 3])), ev
-
-
-@register_task
-class ToyRange(Task):
-    name = TOY
-    legacy_kind = V.Scalar
-    operators = ("toy_camera_range",)
-
-    def read_contract(self, r: dict, video_map: dict | None = None) -> Contract:
-        c, _ = base_contract(r, "toy_camera_range", video_map=video_map)
-        c.entity, c.times = {"kind": "camera"}, instant(c, r)
-        if not c.unit_stated:
-            c.miss("unit")
-        return c
-
-    def reconstruct(self, case: Case) -> None:
-        try:
-            m = case.measure("toy_camera_range", {"kind": "camera"}, case.contract.times)
-        except ContractError as e:
-            raise Exclude("invalid_pose_at_time", t=case.contract.times, error=str(e)) from None
-        case.value = m.value
-        case.rule = Rule().to_dict()
-        case.outcome.time_start = case.outcome.time_end = case.contract.times[0]
-        case.provenance(files=[m.evidence["files"]], frames={"indices": m.evidence["indices"]}, chain="|p(t)|")
-        case.observables["subject"] = "the camera"
-        case.answer = AnswerSpec("scalar", m.value, "m", 2)
-
-    def rewrite(self, case: Case) -> str:
-        return (f"At t={V.format_seconds(case.contract.times[0])} s, how far is the camera centre from the origin "
-                f"of the ScanNet raw scan frame? (unit: m)")
+from tests.toy_task import TOY, ToyRange, toy_registered
 
 
 def _rows() -> pd.DataFrame:
@@ -83,13 +37,18 @@ def _rows() -> pd.DataFrame:
 
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
+    with toy_registered():
+        yield _toy_run(tmp_path_factory)
+
+
+def _toy_run(tmp_path_factory):
     base = tmp_path_factory.mktemp("toy")
     write_scene(base / "scans")
     params = {"scannet_root": str(base / "scans"), "seed": 0, "output_dir": str(base / "out")}
     return run_rows(TOY, _rows(), params), params
 
 
-def test_the_toy_task_is_registered():
+def test_the_toy_task_is_registered(toy):
     assert isinstance(task_for(TOY), ToyRange)
 
 
@@ -132,7 +91,7 @@ def test_toy_provenance_and_option_spec(toy):
     from resti_lib.options.checks import ROW_CHECKS, parse_row
     for r in run.result.accepted:
         for name in ("separation", "plausible_given_question", "format_consistency"):
-            assert ROW_CHECKS[name](parse_row(r, r["ReSTI ID"])) is None, name
+            assert ROW_CHECKS[name](parse_row(r, r["ReSTI ID"], interface())) is None, name
     assert json.loads(prov["source_files"].iloc[0])[0].endswith(".sens")
 
 

@@ -13,9 +13,14 @@ from resti_lib.geometry import trajectory as GT
 from resti_lib.geometry.frames import opencv_cam_pose_to_waymo
 from resti_lib.geometry.trajectory import PoseTrack
 from resti_lib.options.attacks import attack_table
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks import orientation as O
 from resti_lib.tasks import read_contract
 from tests.task_checks import check_defects, check_values, run_on_miniworld
+
+IFACE = _interface()
+
+IFACE = _interface()
 
 TASK = "Ego-Centric Orientation"
 
@@ -164,7 +169,7 @@ def test_convention_counts(mini):
 
 
 def test_attacks_at_chance(mini):
-    table = attack_table(mini.run.result.accepted)
+    table = attack_table(iface=IFACE, records=mini.run.result.accepted)
     assert not table["significant"].any(), table[table["significant"]]
     sub = table[table["attack"].isin(["median", "nearest_circular_mean", "min", "max", "rank_2", "rank_4"])
                 & (table["source"] == "ALL")]

@@ -10,6 +10,7 @@ import pytest
 
 from resti_lib.geometry.frames import make_T, yaw_matrix
 from resti_lib.options.stage import build_options
+from resti_lib.tasks import interface as _interface
 from resti_lib.tasks import relation as RE
 from resti_lib.tasks.run import audit_row
 from tests.task_checks import (
@@ -20,6 +21,8 @@ from tests.task_checks import (
     check_values,
     run_on_miniworld,
 )
+
+IFACE = _interface()
 
 TASK = RE.TASK
 
@@ -67,7 +70,7 @@ def test_label_options_are_the_fixed_five():
     for src, labels in RE.LABELS.items():
         row = {"Video": "v.mp4", "Source": src, "Task": "Spatial Relation", "Question": "q", "time_start": 0.0,
                "time_end": 0.0, "Candidates": {}, "Answer": None, "Answer Detail": labels[2], "ReSTI ID": "r0"}
-        out, _, _ = build_options([row], seed=0, extras={"r0": {"labels": list(labels)}})
+        out, _, _ = build_options(iface=IFACE, records=[row], seed=0, extras={"r0": {"labels": list(labels)}})
         assert sorted(out[0]["Candidates"].values()) == sorted(labels)
         assert out[0]["Candidates"][out[0]["Answer"]] == labels[2]
 

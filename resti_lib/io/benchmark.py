@@ -17,12 +17,12 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Collection, Iterable
 
 import numpy as np
 import pandas as pd
 
-from .. import LETTERS, SOURCES, TASKS
+from .. import LETTERS, SOURCES
 from ..errors import InputError
 from .files import open_regular, parse_json, read_json_object, read_jsonl
 
@@ -119,14 +119,16 @@ def _candidates(value: Any, *, file, row) -> dict:
     raise InputError(f"Candidates is a {type(value).__name__}", file=file, row=row, field="Candidates")
 
 
-def validate_row(r: dict, *, file, row) -> list[Problem]:
-    """Structural problems of one legacy/release row (schema level; values are parsed elsewhere)."""
+def validate_row(r: dict, *, file, row, known_tasks: Collection[str] | None = None) -> list[Problem]:
+    """Structural problems of one legacy/release row (schema level; values are parsed elsewhere).
+    ``known_tasks``: the tasks a row may name (the task registry, :func:`resti_lib.tasks.names`;
+    None: not checked here)."""
     out: list[Problem] = []
 
     def bad(check, fld, msg):
         out.append(Problem(check, row, fld, msg, str(file) if file else None))
 
-    if r.get("Task") not in TASKS:
+    if known_tasks is not None and r.get("Task") not in known_tasks:
         bad("known_task", "Task", f"unknown task {r.get('Task')!r}")
     if r.get("Source") not in SOURCES:
         bad("known_source", "Source", f"unknown source {r.get('Source')!r}")
@@ -200,8 +202,8 @@ def read_parquet_file(path: Path) -> pd.DataFrame:
             raise InputError(f"cannot read parquet ({msg})", file=path) from None
 
 
-def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable[str] | None = None
-                ) -> tuple[pd.DataFrame, list[Problem]]:
+def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable[str] | None = None,
+                known_tasks: Collection[str] | None = None) -> tuple[pd.DataFrame, list[Problem]]:
     """Read a legacy STI-Bench ``qa.parquet`` (or ``.jsonl``).
 
     Returns the rows in file order with ``Candidates`` as dicts, plus ``row`` (0-based index in the
@@ -251,7 +253,7 @@ def load_legacy(path: str | os.PathLike, *, strict: bool = True, tasks: Iterable
                 pass
         if isinstance(r.get("ID"), float) and r["ID"].is_integer():
             r["ID"] = int(r["ID"])
-        problems += validate_row(r, file=path, row=i)
+        problems += validate_row(r, file=path, row=i, known_tasks=known_tasks)
         _raise_first(problems, strict)
     keys = legacy_row_keys(records)
     out = pd.DataFrame.from_records(records, columns=list(cols))
@@ -293,7 +295,8 @@ def key_problem(key: Any, *, source: Any, task: Any, video: Any, legacy_id: Any)
     return None
 
 
-def validate_release_rows(records: list[dict], file: Path | None) -> list[Problem]:
+def validate_release_rows(records: list[dict], file: Path | None, known_tasks: Collection[str] | None = None
+                          ) -> list[Problem]:
     """Schema problems of accepted release rows (per row) and duplicate ids (across rows)."""
     problems: list[Problem] = []
     fname = str(file) if file else None
@@ -302,7 +305,7 @@ def validate_release_rows(records: list[dict], file: Path | None) -> list[Proble
         missing = [c for c in RELEASE_COLUMNS if c not in r]
         if missing:
             problems.append(Problem("columns", rid, missing[0], f"missing field(s) {missing}", fname))
-        problems += validate_row(r, file=file, row=rid)
+        problems += validate_row(r, file=file, row=rid, known_tasks=known_tasks)
         for col in ("ReSTI ID", "Legacy Row Key"):
             v = r.get(col)
             if col in r and not (isinstance(v, str) and v.strip()):
@@ -320,7 +323,8 @@ def validate_release_rows(records: list[dict], file: Path | None) -> list[Proble
     return problems
 
 
-def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
+def validate_excluded(records: list[dict], file: Path | None, known_tasks: Collection[str] | None = None
+                      ) -> list[Problem]:
     problems: list[Problem] = []
     fname = str(file) if file else None
     for i, r in enumerate(records):
@@ -340,7 +344,7 @@ def validate_excluded(records: list[dict], file: Path | None) -> list[Problem]:
             problems.append(Problem("exclusion_reasons", rid, "reason_codes", "reason_codes is empty",
                                     str(file) if file else None))
         malformed = "malformed_row" in (r.get("reason_codes") or [])  # an unknown task/source is its reason
-        if r.get("task") not in TASKS and not malformed:
+        if known_tasks is not None and r.get("task") not in known_tasks and not malformed:
             problems.append(Problem("known_task", rid, "task", f"unknown task {r.get('task')!r}",
                                     str(file) if file else None))
         if r.get("source") not in SOURCES and not malformed:
@@ -395,7 +399,8 @@ def _accepted_records(acc: Path, strict: bool) -> list[dict]:
     return records
 
 
-def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
+def load_release(path: str | os.PathLike, *, strict: bool = True, known_tasks: Collection[str] | None = None
+                 ) -> Release:
     """Read a ReSTI-schema release: a folder (``resti.jsonl`` or ``resti.parquet``, ``excluded.jsonl``,
     optional ``release.json``) or a single accepted-rows file (``.jsonl`` / ``.parquet``).
 
@@ -403,6 +408,7 @@ def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
     object) raise :class:`InputError`. Row problems raise when ``strict``; otherwise they are
     returned in :attr:`Release.problems` (``resti verify`` reports them per check). A ``release.json``
     that is not a JSON object is, when not strict, reported in :attr:`Release.meta_error`.
+    ``known_tasks``: the tasks a row may name (the task registry; None: not checked).
     """
     path = Path(path)
     if not path.exists():
@@ -415,10 +421,10 @@ def load_release(path: str | os.PathLike, *, strict: bool = True) -> Release:
     else:
         acc = path
     records = _accepted_records(acc, strict)
-    problems = validate_release_rows(records, acc)
+    problems = validate_release_rows(records, acc, known_tasks)
     exc_file = _find(root, ("excluded.jsonl",)) if path.is_dir() else None
     excluded = read_jsonl(exc_file) if exc_file else []
-    problems += validate_excluded(excluded, exc_file)
+    problems += validate_excluded(excluded, exc_file, known_tasks)
     _raise_first(problems, strict)
     meta_file = _find(root, ("release.json",)) if path.is_dir() else None
     meta, meta_error = _read_meta(meta_file, strict) if meta_file else (None, None)

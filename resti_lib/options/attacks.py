@@ -55,7 +55,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import binom
 
-from .. import LETTERS, SOURCES, TASKS
+from .. import LETTERS, SOURCES
 from .. import values as V
 from ..geometry.frames import nearest_rotation
 from .checks import ParsedRow, parse_row
@@ -146,8 +146,18 @@ class Batch:
         if self._obs is None:
             from .observables import observables_of
 
-            self._obs = [observables_of(r) for r in self.records]
+            iface = self.settings.get("iface")
+            if iface is None:
+                raise ValueError("attacks that read the question need the answer interface (attack_table iface=)")
+            self._obs = [observables_of(r, iface.quantity_of(str(r.get("Task")), r.get("Question"))) for r in self.records]
         return self._obs
+
+    @property
+    def task_order(self) -> tuple:
+        """Task names in the interface's (benchmark) order, then any other task of the rows by name."""
+        iface = self.settings.get("iface")
+        known = tuple(iface.tasks) if iface is not None else ()
+        return known + tuple(sorted({str(p.task) for p in self.rows} - set(known)))
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -814,10 +824,12 @@ def run_picks(rows: list[ParsedRow], names: Iterable[str] | None = None, *, reco
     return pd.concat(frames, ignore_index=True)
 
 
-def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | None = None) -> pd.DataFrame:
+def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | None = None, task_order: tuple = ()
+                    ) -> pd.DataFrame:
     """Aggregate per-row picks into the attack table (see the module docstring for the columns).
 
     ``tests`` maps attack name -> comparisons inside it (Bonferroni factor; default from the registry).
+    ``task_order``: the order of the tasks in the table (others follow by name).
     An attack with several directions keeps, per cell, the direction with the most expected hits and
     its p-value is multiplied by the number of directions too.
     """
@@ -864,9 +876,10 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     df = df[df["picked"] > 0]
     fam = {f: i for i, f in enumerate(FAMILIES)}
     order = {n: (fam.get(a.family, len(fam)), i) for i, (n, a) in enumerate(ATTACKS.items())}
-    task_order = {t: i for i, t in enumerate(TASKS)}
+    rank = {t: i for i, t in enumerate(task_order)}
+    rank.update({t: len(rank) + i for i, t in enumerate(sorted(set(df["task"]) - set(rank)))})
     src_order = {s: i for i, s in enumerate(SOURCES)}
-    df = df.assign(_a=df["attack"].map(lambda n: order.get(n, (len(fam), len(order)))), _t=df["task"].map(task_order),
+    df = df.assign(_a=df["attack"].map(lambda n: order.get(n, (len(fam), len(order)))), _t=df["task"].map(rank),
                    _s=df["source"].map(lambda s: src_order.get(s, 99)))
     df = df.sort_values(["_t", "_a", "_s"], kind="stable").drop(columns=["_a", "_t", "_s"]).reset_index(drop=True)
     df["p_holm"] = holm_adjusted(df["p_value"])
@@ -879,14 +892,18 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
 OPTION_ONLY = ("option",)
 
 
-def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fast: bool = False, attacks=None,
-                 learned=None, groups: dict | None = None, progress: bool = False) -> pd.DataFrame:
+def attack_table(records: list[dict], *, iface=None, families=None, alpha: float = 0.05, fast: bool = False,
+                 attacks=None, learned=None, groups: dict | None = None, progress: bool = False) -> pd.DataFrame:
     """The attack table of a list of release rows (dicts with Candidates as dicts).
 
     Parameters
     ----------
     records:
         Release (or legacy) rows.
+    iface:
+        The answer interface (:class:`resti_lib.options.spec.Interface`, from
+        :func:`resti_lib.tasks.interface`): what each task's questions measure, for the attacks that
+        read the question, and the order of the tasks in the table.
     families:
         Attack families to run (see :data:`FAMILIES`); ``"all"``: every family, the full blind suite of
         ``resti attack``. None (the default) keeps the historical scope of this function, the
@@ -910,7 +927,8 @@ def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fas
         families = OPTION_ONLY if attacks in (None, "all") else "all"
     names = select(families, attacks, fast=fast or learned is False)
     rows = parse_rows(records)
-    batch, _ = make_batch(rows, records, learned=None if learned is False else learned, groups=groups or {})
+    batch, _ = make_batch(rows, records, learned=None if learned is False else learned, groups=groups or {},
+                          iface=iface)
     it = names
     if progress:
         from tqdm.auto import tqdm
@@ -922,7 +940,7 @@ def attack_table(records: list[dict], *, families=None, alpha: float = 0.05, fas
         if len(f):
             frames.append(f)
     picks = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=PICK_COLUMNS)
-    return summarize_picks(picks, alpha=alpha)
+    return summarize_picks(picks, alpha=alpha, task_order=batch.task_order)
 
 
 def strongest(table: pd.DataFrame, task: str, *, source: str = "ALL", full_coverage: bool = True
@@ -955,7 +973,7 @@ def headline(table: pd.DataFrame) -> pd.DataFrame:
                     "families": ",".join(f for f in FAMILIES if f in set(sig["family"])),
                     "min_detectable": float(best["min_detectable"]), "underpowered": bool(best["underpowered"])})
     df = pd.DataFrame(out)
-    task_order = {t: i for i, t in enumerate(TASKS)}
+    task_order = {t: i for i, t in enumerate(dict.fromkeys(table["task"]))}  # the table's own order
     src_order = {s: i for i, s in enumerate(SOURCES)}
     df = df.assign(_g=~df["significant"], _t=df["task"].map(task_order),
                    _s=df["source"].map(lambda s: src_order.get(s, 99)))

@@ -11,7 +11,6 @@ import json
 import math
 import re
 from dataclasses import dataclass, field
-from functools import cache
 from typing import Callable
 
 import numpy as np
@@ -19,18 +18,6 @@ import numpy as np
 from .. import LETTERS
 from .. import values as V
 from ..errors import InputError
-
-# The value kind each task's answers must have.
-TASK_KIND = {
-    "3D Video Grounding": "box",
-    "Pose Estimation": "pose",
-    "Ego-Centric Orientation": "scalar",
-    "Dimensional Measurement": "scalar",
-    "Displacement & Path Length": "scalar",
-    "Speed & Acceleration": "scalar",
-    "Trajectory Description": "trajectory",
-    "Spatial Relation": "label",
-}
 
 
 @dataclass
@@ -50,7 +37,7 @@ class ParsedRow:
     time_start: object
     time_end: object
     record: dict | None = None
-    option_params: dict | None = None
+    iface: object | None = None  # the answer interface (options.spec.Interface) the spec checks read
     spec_read: tuple | None = field(default=None, repr=False, compare=False)  # (spec, params) once read
 
     @property
@@ -62,9 +49,11 @@ def _text(v) -> str | None:
     return v if isinstance(v, str) else None
 
 
-def parse_row(r: dict, rid: object, option_params: dict | None = None) -> ParsedRow:
+def parse_row(r: dict, rid: object, iface=None) -> ParsedRow:
     """Parse a row once. Fields of the wrong type (a list as Task, a number as a candidate) are kept
-    out of the parsed values, so every check sees plain text and reports instead of failing."""
+    out of the parsed values, so every check sees plain text and reports instead of failing.
+    ``iface``: the answer interface (:class:`resti_lib.options.spec.Interface`) the task-aware checks
+    read (kind, separation, plausibility, format); the release's own, as ``resti verify`` reads it."""
     raw = r.get("Candidates") if isinstance(r.get("Candidates"), dict) else {}
     cand = {str(k): v for k, v in raw.items()}
     vals, errs = {}, {}
@@ -88,7 +77,7 @@ def parse_row(r: dict, rid: object, option_params: dict | None = None) -> Parsed
     return ParsedRow(rid=rid, task=_text(r.get("Task")), source=_text(r.get("Source")), candidates=cand,
                      answer=_text(r.get("Answer")), detail=_text(detail), values=vals, errors=errs,
                      detail_value=dv, detail_error=de, time_start=r.get("time_start"),
-                     time_end=r.get("time_end"), record=r, option_params=option_params)
+                     time_end=r.get("time_end"), record=r, iface=iface)
 
 
 RowCheck = Callable[[ParsedRow], "str | None"]
@@ -161,7 +150,11 @@ def _numeric_dup(p: ParsedRow):
 
 @row_check("same_kind")
 def _same_kind(p: ParsedRow):
-    want = TASK_KIND.get(p.task)
+    if p.iface is None:
+        raise ValueError("the same_kind check needs the answer interface (parse_row iface=)")
+    want = p.iface.kind(p.task)
+    if want is None and p.task is not None:
+        return f"no registered task {p.task!r} states the kind of its answers"
     kinds = {k: v.kind for k, v in p.values.items()}
     bad = {k: kd for k, kd in kinds.items() if want and kd != want}
     if bad:
@@ -283,23 +276,17 @@ def _ranges(p: ParsedRow):
 # The answer interface's requirements (params/options.yaml; the option stage builds to them):
 # separation, physical possibility given the question, formatting that marks no candidate.
 
-@cache
-def _default_option_params() -> dict:
-    """``params/options.yaml`` read once per process (the checks only read it)."""
-    from .spec import load_option_params
-
-    return load_option_params()
-
-
 def _spec(p: ParsedRow):
     """The row's option spec and the option params, or None when the row cannot be read."""
     from .spec import spec_of
 
+    if p.iface is None:
+        raise ValueError("the answer-interface checks need the interface the options were built with (parse_row iface=)")
     if p.spec_read is None:  # read once per row: several checks ask
         p.spec_read = (None, None)
         if p.record is not None and p.detail_value is not None and p.complete:
             try:
-                p.spec_read = (spec_of(p.record, str(p.rid)), p.option_params or _default_option_params())
+                p.spec_read = (spec_of(p.record, str(p.rid), iface=p.iface), p.iface.options)
             except InputError:
                 pass
     return p.spec_read

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .. import LETTERS, SOURCES, TASKS
+from .. import LETTERS, SOURCES
 from .. import values as V
 from ..geometry.frames import nearest_rotation
 from .attacks import (
@@ -226,13 +226,14 @@ def _group_stats(p: ParsedRow) -> np.ndarray:
     return out
 
 
-def row_features(p: ParsedRow) -> np.ndarray:
-    """(5, F) features of the five candidates of one complete row, in letter order."""
+def row_features(p: ParsedRow, tasks: tuple = ()) -> np.ndarray:
+    """(5, F) features of the five candidates of one complete row, in letter order (``tasks``: the
+    task names of the one-hot task columns)."""
     strings = [str(p.candidates[k]) for k in LETTERS]
     n = 5
-    task = np.zeros((n, len(TASKS)))
-    if p.task in TASKS:
-        task[:, TASKS.index(p.task)] = 1
+    task = np.zeros((n, len(tasks)))
+    if p.task in tasks:
+        task[:, tasks.index(p.task)] = 1
     src = np.zeros((n, len(SOURCES)))
     if p.source in SOURCES:
         src[:, SOURCES.index(p.source)] = 1
@@ -273,13 +274,15 @@ def row_features(p: ParsedRow) -> np.ndarray:
                            rot, order], axis=1)
 
 
-def feature_matrix(rows: list[ParsedRow]) -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """Stacked candidate features ``X`` (5 per usable row), labels ``y`` and the usable row indices."""
+def feature_matrix(rows: list[ParsedRow], tasks: tuple | None = None) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Stacked candidate features ``X`` (5 per usable row), labels ``y`` and the usable row indices
+    (``tasks``: the task names of the one-hot task columns; default: the rows' tasks, sorted)."""
+    tasks = tuple(tasks) if tasks is not None else tuple(sorted({str(p.task) for p in rows}))
     X, y, used = [], [], []
     for i, p in enumerate(rows):
         if not (p.complete and p.answer in LETTERS):
             continue
-        X.append(row_features(p))
+        X.append(row_features(p, tasks))
         y.append([k == p.answer for k in LETTERS])
         used.append(i)
     if not X:
@@ -414,7 +417,7 @@ def _option_matrix(batch: Batch) -> tuple[np.ndarray, np.ndarray]:
     """Option-only candidate features and labels of every row of the batch (computed once per batch)."""
     key = "learned_option_features"
     if key not in batch._index:
-        X, y, _ = feature_matrix(batch.rows)
+        X, y, _ = feature_matrix(batch.rows, batch.task_order)
         batch._index[key] = (X, y)
     return batch._index[key]
 
@@ -479,7 +482,7 @@ def _learned_question(batch: Batch):
     return _picks_of_scores(grouped_scores(Xq, y, groups, config_of(batch.settings.get("learned"))))
 
 
-def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attacks=None,
+def attack_table_with_learned(records: list[dict], *, iface=None, alpha: float = 0.05, attacks=None,
                               learned: LearnedConfig | None | bool = None, groups: dict | None = None,
                               families=None) -> pd.DataFrame:
     """The attack table with the learned attackers (:func:`attacks.attack_table` with ``fast=False``).
@@ -495,7 +498,8 @@ def attack_table_with_learned(records: list[dict], *, alpha: float = 0.05, attac
     if attacks not in (None, "all"):
         names = [attacks] if isinstance(attacks, str) else list(attacks)
         attacks = names + [n for n in select(fams) if ATTACKS[n].learned and n not in names]
-    return attack_table(records, families=fams, alpha=alpha, attacks=attacks, learned=learned, groups=groups)
+    return attack_table(records, iface=iface, families=fams, alpha=alpha, attacks=attacks, learned=learned,
+                        groups=groups)
 
 
 def config_from(params: dict | None) -> LearnedConfig:

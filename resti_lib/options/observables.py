@@ -7,8 +7,9 @@ of a truck like the boxes of trucks); the attack suite reads the same things.
 
 ``Observables`` fields:
 
-* ``quantity`` — what is measured: ``displacement``, ``path_length``, ``speed``, ``acceleration``,
-  ``length``, ``width``, ``height``, ``distance_to_camera``, ``surface_distance``, ``distance``,
+* ``quantity`` — what is measured, as the row's task reads its question: ``displacement``,
+  ``path_length``, ``speed``, ``acceleration``, ``length``, ``width``, ``height``,
+  ``distance_to_camera``, ``surface_distance``, ``distance``,
   ``heading_change``, ``box``, ``pose``, ``trajectory``, ``relation``;
 * ``window_s`` — the question's time window (end minus start, or target minus premise time), or None;
 * ``subject`` / ``subject_class`` — the noun phrase of the measured thing and its head noun
@@ -121,27 +122,6 @@ def subject_of(question: str) -> str:
     return "camera" if "camera" in q.lower() else ""
 
 
-def quantity_of(task: str, question: str) -> str:
-    q = " ".join(str(question or "").lower().split())
-    if task == "Displacement & Path Length":
-        if re.search(r"trajectory length|total distance|path length|distance traveled|distance travelled", q):
-            return "path_length"
-        return "displacement"
-    if task == "Speed & Acceleration":
-        return "acceleration" if "acceleration" in q else "speed"
-    if task == "Dimensional Measurement":
-        if "surface-to-surface" in q or "surface to surface" in q:
-            return "surface_distance"
-        if re.search(r"distance from the camera", q):
-            return "distance_to_camera"
-        m = re.search(r"what is the (?:approximate )?(length|width|height)\b(?: \([^)]*\))? of\b", q)
-        if m:
-            return m.group(1)
-        return "distance"
-    return {"Ego-Centric Orientation": "heading_change", "3D Video Grounding": "box", "Pose Estimation": "pose",
-            "Trajectory Description": "trajectory", "Spatial Relation": "relation"}.get(task, "value")
-
-
 def premise_of(question: str) -> tuple[np.ndarray | None, str | None, float | None]:
     """The premise pose printed in a Pose question, its text and its time (identity for a question
     that takes the reference camera as the identity)."""
@@ -165,16 +145,16 @@ def premise_of(question: str) -> tuple[np.ndarray | None, str | None, float | No
     return None, None, None
 
 
-def observables_of(row: dict) -> Observables:
-    """The observables of one ReSTI-schema row (see the module docstring)."""
+def observables_of(row: dict, quantity: str) -> Observables:
+    """The observables of one ReSTI-schema row (see the module docstring); ``quantity``: what its
+    question measures, read by its task (:meth:`resti_lib.options.spec.Interface.quantity_of`)."""
     task = str(row.get("Task") or "")
     source = str(row.get("Source") or "")
     video = str(row.get("Video") or "")
     q = str(row.get("Question") or "")
     t0, t1 = _num(row.get("time_start")), _num(row.get("time_end"))
     seq, cam = sequence_of(video, source)
-    quantity = quantity_of(task, q)
-    premise, premise_text, premise_time = (premise_of(q) if task == "Pose Estimation" else (None, None, None))
+    premise, premise_text, premise_time = (premise_of(q) if quantity == "pose" else (None, None, None))
     window = None
     if quantity == "pose":
         target = t1
@@ -195,4 +175,4 @@ def observables_of(row: dict) -> Observables:
                        premise=premise, premise_text=premise_text, premise_time=premise_time)
 
 
-__all__ = ["Observables", "observables_of", "head_noun", "subject_of", "quantity_of", "premise_of", "sequence_of"]
+__all__ = ["Observables", "observables_of", "head_noun", "subject_of", "premise_of", "sequence_of"]

@@ -6,8 +6,9 @@ kind, unit and printed decimals, the adjudication rule of its task, and the ques
 computed here, once, for the builder (:mod:`resti_lib.options.stage`) and for ``resti verify``
 (:mod:`resti_lib.options.checks`), so the two cannot disagree.
 
-Parameters come from ``params/options.yaml`` (:func:`load_option_params`); the adjudication rule of
-each task from that task's own params file (:func:`task_rule`), where the task states it.
+Parameters come from the run's :class:`Interface`: ``params/options.yaml`` with the run's overrides
+(:func:`load_option_params`) and each task's comparison rule and question reader, built by the task
+registry (:func:`resti_lib.tasks.interface`) and recorded in ``release.json``.
 """
 
 from __future__ import annotations
@@ -15,46 +16,98 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from typing import Callable, Mapping
 
 import numpy as np
 
 from .. import SOURCES, defaults
 from .. import values as V
+from ..adjudicate import Rule
 from ..errors import InputError
 from ..geometry.frames import rotation_angle_deg
 from .observables import Observables, observables_of
 
 OPTION_PARAMS = "params/options.yaml"
 
-#: Where each task states its adjudication tolerance: (params file, key, how to read it).
-_RULE_KEYS = {
-    "Dimensional Measurement": ("dimensional", "rule"),
-    "Displacement & Path Length": ("displacement", "rule"),
-    "Speed & Acceleration": ("speed", "rule"),
-    "Ego-Centric Orientation": ("orientation", "angle_abs_tol_deg"),
-    "3D Video Grounding": ("grounding", "centre_abs_tol_m"),
-    "Pose Estimation": ("pose", "compare_abs_tol"),
-    "Trajectory Description": ("trajectory", "compare_abs_tol_m"),
-}
+
+@dataclass(frozen=True)
+class TaskInterface:
+    """What the answer interface knows of one task: the :mod:`resti_lib.values` kind of its answers,
+    its comparison rule per source (the adjudication tolerance, which is also the separation floor
+    of its candidates: two candidates the rule would call equal are never both offered) and its
+    question reader (what a question measures). Built by the task (:meth:`resti_lib.tasks.base.Task.interface`)."""
+
+    kind: str
+    rules: Mapping[str, Rule]
+    quantity_of: Callable[[str], str] = field(compare=False)
+
+    def rule(self, source: str) -> Rule:
+        return self.rules.get(source, Rule())
 
 
 @dataclass(frozen=True)
-class Rule:
-    """Two values agree when they differ by at most half a printed unit + ``abs_tol`` + ``rel_tol``·|v|."""
+class Interface:
+    """The answer interface of a run or a release: the option params (``params/options.yaml`` with
+    the run's overrides) and :class:`TaskInterface` per task. One object from the run's params to
+    the option stage, ``release.json`` (:meth:`to_dict`) and back (:meth:`with_record`), so the
+    options are checked against the params they were built with."""
 
-    abs_tol: float = 0.0
-    rel_tol: float = 0.0
+    options: dict
+    tasks: Mapping[str, TaskInterface]
 
-    def tolerance(self, value: float, ulp: float) -> float:
-        return 0.5 * ulp + self.abs_tol + self.rel_tol * abs(value)
+    def task(self, name: str) -> TaskInterface | None:
+        return self.tasks.get(name)
+
+    def rule(self, task: str, source: str) -> Rule:
+        t = self.tasks.get(task)
+        return t.rule(source) if t else Rule()
+
+    def kind(self, task: str) -> str | None:
+        t = self.tasks.get(task)
+        return t.kind if t else None
+
+    def quantity_of(self, task: str, question: str) -> str:
+        t = self.tasks.get(task)
+        return t.quantity_of(question) if t else "value"
+
+    def to_dict(self) -> dict:
+        """The record written under ``answer_interface`` in ``release.json``."""
+        return {"options": copy.deepcopy(self.options),
+                "rules": {name: {s: {"abs_tol": r.abs_tol, "rel_tol": r.rel_tol} for s, r in sorted(t.rules.items())}
+                          for name, t in self.tasks.items()}}
+
+    def with_record(self, record: dict | None, *, file=None) -> Interface:
+        """This interface with the option params and rules of a ``release.json`` record (a task the
+        record does not name keeps its own; a record that is not one is refused by name)."""
+        if record is None:
+            return self
+        if not isinstance(record, dict) or not isinstance(record.get("options"), dict) \
+                or not isinstance(record.get("rules"), dict):
+            raise InputError("answer_interface must hold the mappings options and rules", file=file,
+                             field="answer_interface")
+        tasks = dict(self.tasks)
+        for name, by_source in record["rules"].items():
+            if name not in tasks:
+                continue
+            try:
+                rules = {str(s): Rule(float(r["abs_tol"]), float(r["rel_tol"])) for s, r in by_source.items()}
+            except (KeyError, TypeError, ValueError, AttributeError):
+                raise InputError(f"the rule of {name!r} is not {{source: {{abs_tol, rel_tol}}}}", file=file,
+                                 field="answer_interface.rules") from None
+            if any(not (math.isfinite(r.abs_tol) and math.isfinite(r.rel_tol)) or r.abs_tol < 0 or r.rel_tol < 0
+                   for r in rules.values()):
+                raise InputError(f"the rule of {name!r} has a negative or non-finite tolerance", file=file,
+                                 field="answer_interface.rules")
+            tasks[name] = TaskInterface(tasks[name].kind, rules, tasks[name].quantity_of)
+        return Interface(load_option_params(record["options"]), tasks)
 
 
-def _merge(base: dict, over: dict | None) -> dict:
+def deep_merge(base: dict, over: dict | None) -> dict:
+    """``base`` with ``over`` merged in, mapping by mapping (copies)."""
     out = copy.deepcopy(base)
     for k, v in (over or {}).items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
+            out[k] = deep_merge(out[k], v)
         else:
             out[k] = copy.deepcopy(v)
     return out
@@ -66,7 +119,7 @@ def load_option_params(overrides: dict | None = None) -> dict:
     unknown = sorted(set(overrides or {}) - set(base))
     if unknown:
         raise InputError(f"unknown option parameter group(s) {unknown}; known: {sorted(base)}", file=OPTION_PARAMS)
-    return _merge(base, overrides) if overrides else base  # base is already a copy
+    return deep_merge(base, overrides) if overrides else base  # base is already a copy
 
 
 def per_source(table, source: str, default=None):
@@ -74,24 +127,6 @@ def per_source(table, source: str, default=None):
     if isinstance(table, dict) and any(s in table for s in SOURCES):
         return table.get(source, default)
     return table if table is not None else default
-
-
-@lru_cache(maxsize=16)
-def task_rule(task: str) -> Rule:
-    """The adjudication rule a task states in its params file (no rule: exact agreement)."""
-    where = _RULE_KEYS.get(task)
-    if where is None:
-        return Rule()
-    f, key = where
-    try:
-        v = defaults.load(f).get(key)
-    except InputError:
-        return Rule()
-    if isinstance(v, dict):
-        return Rule(float(v.get("abs_tol", 0.0)), float(v.get("rel_tol", 0.0)))
-    if isinstance(v, (int, float)):
-        return Rule(float(v), 0.0)
-    return Rule()
 
 
 def kind_of(v: V.Value) -> str:
@@ -133,23 +168,25 @@ class OptionSpec:
                 "observables": self.obs.to_dict()}
 
 
-def spec_of(row: dict, rid: str | None = None, extra: dict | None = None) -> OptionSpec:
-    """The option spec of one ReSTI-schema row (``extra``: what the task knows beyond the row, e.g.
-    the subject's source class)."""
+def spec_of(row: dict, rid: str | None = None, extra: dict | None = None, *, iface: Interface) -> OptionSpec:
+    """The option spec of one ReSTI-schema row under the answer interface ``iface`` (its task's
+    rule and question reader; ``extra``: what the task knows beyond the row, e.g. the subject's
+    source class)."""
     rid = str(rid if rid is not None else (row.get("ReSTI ID") or row.get("Legacy Row Key") or ""))
     detail = row.get("Answer Detail")
     v = V.parse(detail, row=rid, field="Answer Detail")
     if not v.finite():
         raise InputError("Answer Detail is not finite", row=rid, field="Answer Detail")
-    obs = observables_of(row)
+    task, source = str(row.get("Task")), str(row.get("Source"))
+    obs = observables_of(row, iface.quantity_of(task, row.get("Question")))
     if extra and extra.get("subject_class"):
         obs = Observables(**{**obs.__dict__, "subject_class": str(extra["subject_class"])})
     labels = ()
     if isinstance(v, V.Label):
         c = row.get("Candidates") if isinstance(row.get("Candidates"), dict) else {}
         labels = tuple(sorted(str(s) for s in c.values()))
-    return OptionSpec(rid, str(row.get("Task")), str(row.get("Source")), kind_of(v), v, str(detail), obs,
-                      task_rule(str(row.get("Task"))), labels, dict(extra or {}))
+    return OptionSpec(rid, task, source, kind_of(v), v, str(detail), obs, iface.rule(task, source), labels,
+                      dict(extra or {}))
 
 
 # ------------------------------------------------------------------------------ floors and bounds
@@ -234,6 +271,7 @@ def pose_separation(a: V.Pose, b: V.Pose, floors: dict) -> float:
     return float(max(parts))
 
 
-__all__ = ["OptionSpec", "Rule", "spec_of", "load_option_params", "task_rule", "kind_of", "per_source",
+__all__ = ["Interface", "deep_merge", "OptionSpec", "Rule", "TaskInterface", "spec_of", "load_option_params", "kind_of",
+           "per_source",
            "speed_bound", "scalar_bounds", "scalar_gap", "angle_gap", "box_floors", "pose_floors",
            "box_separation", "pose_separation", "OPTION_PARAMS"]

@@ -54,11 +54,11 @@ from ..geometry.frames import nearest_rotation
 from ..rng import row_rng, stable_seed
 from .population import Copula, Marginal, circular_cut, from_cut_line, on_cut_line
 from .spec import (
+    Interface,
     OptionSpec,
     angle_gap,
     box_floors,
     box_separation,
-    load_option_params,
     per_source,
     pose_floors,
     pose_separation,
@@ -526,17 +526,17 @@ def _log_window(spec: OptionSpec) -> float:
 class Stage:
     """Plans and builds the options of a set of accepted rows (see the module docstring)."""
 
-    def __init__(self, records: list[dict], *, seed: int = 0, params: dict | None = None,
-                 extras: dict | None = None):
+    def __init__(self, records: list[dict], *, iface: Interface, seed: int = 0, extras: dict | None = None):
         self.records = records
         self.seed = int(seed)
-        self.params = params if params is not None else load_option_params()
+        self.iface = iface
+        self.params = iface.options
         self.model = self.params["model"]
         extras = extras or {}
         self.plans: list[RowPlan] = []
         for i, r in enumerate(records):
             rid = str(r.get("ReSTI ID") or r.get("Legacy Row Key") or i)
-            self.plans.append(RowPlan(spec_of(r, rid, extras.get(rid))))
+            self.plans.append(RowPlan(spec_of(r, rid, extras.get(rid), iface=iface)))
         if len({p.rid for p in self.plans}) != len(self.plans):
             dup = [k for k, n in Counter(p.rid for p in self.plans).items() if n > 1]
             raise InputError(f"row ids are not unique, e.g. {dup[:3]}", field="ReSTI ID")
@@ -1388,13 +1388,14 @@ def _traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
     return fmt
 
 
-def build_options(records: list[dict], *, seed: int = 0, params: dict | None = None, extras: dict | None = None,
+def build_options(records: list[dict], *, iface: Interface, seed: int = 0, extras: dict | None = None,
                   progress: bool = False, on_failure: str = "raise") -> tuple[list[dict], pd.DataFrame, dict]:
-    """Candidates and letters for every row (see the module docstring); returns (rows, evidence,
+    """Candidates and letters for every row under the answer interface ``iface`` (the option params
+    and each task's rule and question reader; see the module docstring); returns (rows, evidence,
     failed) — see :meth:`Stage.build`."""
     if not records:
         return [], pd.DataFrame(), {}
-    return Stage(records, seed=seed, params=params, extras=extras).build(progress=progress, on_failure=on_failure)
+    return Stage(records, iface=iface, seed=seed, extras=extras).build(progress=progress, on_failure=on_failure)
 
 
 __all__ = ["OptionError", "Stage", "box_yaw", "build_options", "centre_fields", "centre_from_fields",

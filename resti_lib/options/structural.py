@@ -41,18 +41,18 @@ import pandas as pd
 from .. import values as V
 from ..errors import InputError
 from ..rng import stable_seed
-from .spec import angle_gap, load_option_params, scalar_gap, spec_of
+from .spec import Interface, angle_gap, scalar_gap, spec_of
 from .stage import share_key
 
 CHANCE = 0.2
 COLUMNS = ["task", "source", "leak", "n_rows", "rows_affected", "accuracy_on_affected", "detail", "remedy"]
 
 
-def _specs(records: list[dict]) -> list:
+def _specs(records: list[dict], iface: Interface) -> list:
     out = []
     for i, r in enumerate(records):
         try:
-            out.append(spec_of(r, str(r.get("ReSTI ID") or i)))
+            out.append(spec_of(r, str(r.get("ReSTI ID") or i), iface=iface))
         except InputError:
             out.append(None)
     return out
@@ -79,10 +79,11 @@ def _floor_bound(values: np.ndarray, gaps: np.ndarray) -> tuple[float, str, int,
     return best, where, inside, slots
 
 
-def structural_leaks(records: list[dict], params: dict | None = None) -> pd.DataFrame:
-    """One row per (task, source, leak) that options cannot remove (see the module docstring)."""
-    params = params or load_option_params()
-    specs = _specs(records)
+def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
+    """One row per (task, source, leak) that options cannot remove (see the module docstring), under
+    the answer interface the options are built with."""
+    params = iface.options
+    specs = _specs(records, iface)
     cells: dict[tuple, list[int]] = defaultdict(list)
     for i, r in enumerate(records):
         cells[(str(r.get("Task")), str(r.get("Source")))].append(i)
@@ -187,12 +188,13 @@ def structural_leaks(records: list[dict], params: dict | None = None) -> pd.Data
     return pd.DataFrame(out, columns=COLUMNS)
 
 
-def evaluation_subset(records: list[dict], leaks: pd.DataFrame | None = None, *, seed: int = 0) -> dict:
+def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame | None = None, *, seed: int = 0
+                      ) -> dict:
     """A documented subset of the rows (ids and the rule) under which the label prior, metadata,
     same-video reveal and zero-slot attacks are at chance. The release itself is not changed."""
-    leaks = structural_leaks(records) if leaks is None else leaks
+    leaks = structural_leaks(records, iface) if leaks is None else leaks
     rid = [str(r.get("ReSTI ID") or i) for i, r in enumerate(records)]
-    specs = _specs(records)
+    specs = _specs(records, iface)
     drop: dict[str, str] = {}
     rng = np.random.default_rng(stable_seed(seed, "evaluation_subset"))
     meta_cells = {(t, s) for t, s, lk, b in zip(leaks["task"], leaks["source"], leaks["leak"],

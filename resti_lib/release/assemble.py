@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .. import LETTERS, TASKS, __version__
+from .. import LETTERS, __version__
 from ..errors import InvariantError
 from ..io.benchmark import jsonl_text, load_legacy, load_release, rows_to_parquet_bytes
-from ..io.files import atomic_write_bytes, read_jsonl, sha256_bytes, write_json_bytes
+from ..io.files import atomic_write_bytes, read_json_object, read_jsonl, sha256_bytes, write_json_bytes
+from ..tasks import all_tasks, names
 from ..tasks.base import slug
 from .publish import publishing
 from .verify import verify_release
@@ -41,20 +42,26 @@ def _read_jsonl(path: Path) -> list[dict]:
     return read_jsonl(path) if path.exists() else []
 
 
-def collect(tasks_dir: Path, legacy: pd.DataFrame) -> tuple[list[dict], list[dict], pd.DataFrame]:
-    """Read every task's outputs; legacy rows of a task that is not in TASKS become exclusions."""
+def collect(tasks_dir: Path, legacy: pd.DataFrame) -> tuple[list[dict], list[dict], pd.DataFrame, dict]:
+    """Read every registered task's outputs: accepted rows, exclusions, provenance and the answer
+    interface its options were built with (merged into one ``answer_interface`` record for
+    ``release.json``; the tasks of one release share one set of option params). Legacy rows of a
+    task that no registered task audits become exclusions (``malformed_row``)."""
     accepted, excluded, prov = [], [], []
+    record: dict = {"options": None, "rules": {}}
     present = set(legacy["Task"])
-    for task in TASKS:
-        if task not in present:
+    for task in all_tasks():
+        if task.name not in present:
             continue
-        d = tasks_dir / slug(task)
+        d = tasks_dir / slug(task.name)
         if not (d / "accepted.jsonl").exists():
-            raise InvariantError(f"no outputs for task {task!r} in {d}: run its notebook first")
+            raise InvariantError(f"no outputs for task {task.name!r} in {d}: run its notebook first")
         accepted += _read_jsonl(d / "accepted.jsonl")
         excluded += _read_jsonl(d / "excluded.jsonl")
         prov.append(pd.read_parquet(d / "provenance.parquet"))
-    for r in legacy[~legacy["Task"].isin(TASKS)].to_dict("records"):
+        _merge_interface(record, d / "interface.json", task.name)
+    known = set(names())
+    for r in legacy[~legacy["Task"].isin(known)].to_dict("records"):
         excluded.append({"key": r["Legacy Row Key"], "legacy_id": r.get("ID"), "legacy_video": r.get("Video"),
                          "source": r.get("Source"), "task": r.get("Task"), "reason_codes": ["malformed_row"],
                          "verification_verdict": "excluded_malformed_row",
@@ -65,7 +72,23 @@ def collect(tasks_dir: Path, legacy: pd.DataFrame) -> tuple[list[dict], list[dic
                                    "reasons": '["malformed_row"]', "defects": "[]"}]))
     provenance = pd.concat(prov, ignore_index=True) if prov else pd.DataFrame()
     del prov  # the task frames go before the legacy-order copy: one copy of the provenance at a time
-    return accepted, excluded, _in_legacy_order(provenance, legacy)
+    return accepted, excluded, _in_legacy_order(provenance, legacy), record if record["options"] is not None else {}
+
+
+def _merge_interface(record: dict, path: Path, task: str) -> None:
+    """Add one task's ``interface.json`` to the release's ``answer_interface`` record."""
+    if not path.exists():
+        raise InvariantError(f"no interface.json for task {task!r} in {path.parent}: rerun its notebook")
+    own = read_json_object(path)
+    if not isinstance(own, dict) or not isinstance(own.get("rules"), dict) or task not in own["rules"]:
+        raise InvariantError(f"{path} does not record the answer interface of {task!r}")
+    if record["options"] is None:
+        record["options"] = own.get("options")
+    elif own.get("options") != record["options"]:
+        first = next(iter(record["rules"]))
+        raise InvariantError(f"tasks {first!r} and {task!r} built their options with different option params "
+                             f"(params/options.yaml changed between their runs?): rerun both")
+    record["rules"][task] = own["rules"][task]
 
 
 def _in_legacy_order(provenance: pd.DataFrame, legacy: pd.DataFrame) -> pd.DataFrame:
@@ -119,7 +142,7 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
     by_source = Counter(r["Source"] for r in accepted)
     ex_task = Counter(r.get("task") for r in excluded)
     letters = Counter(r["Answer"] for r in accepted)
-    order = {t: i for i, t in enumerate(TASKS)}
+    order = {t: i for i, t in enumerate(names())}
     ex_items = sorted(ex_task.items(), key=lambda kv: order.get(kv[0], 99)) if excluded_order == "task" \
         else sorted(ex_task.items())
     return {
@@ -131,12 +154,17 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
     }
 
 
-def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None
-                 ) -> dict:
+def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None,
+                 answer_interface: dict | None = None) -> dict:
     """The ``release.json`` object of an assembled release; ``context``: the run that made it, under
-    ``run`` (:func:`resti_lib.run.runinfo.run_context`: input, params digest, code and package versions)."""
+    ``run`` (:func:`resti_lib.run.runinfo.run_context`: input, params digest, code and package versions);
+    ``answer_interface``: the option params and task rules the options were built with
+    (:meth:`resti_lib.options.spec.Interface.to_dict`), which ``resti verify`` and ``resti reoption``
+    read back."""
     meta = {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
             **count_fields(accepted, excluded), "artifacts": artifacts}
+    if answer_interface:
+        meta["answer_interface"] = answer_interface
     if context:
         meta["run"] = context
     return meta
@@ -167,7 +195,7 @@ class ReleaseStage:
         """Verify the staged release and write ``validation.json``; returns the validation object.
         ``meta``: the ``release.json`` that :meth:`seal` will write (written after this file, so its
         counts are checked from here rather than reported as absent)."""
-        rel = load_release(self.dir, strict=False)
+        rel = load_release(self.dir, strict=False, known_tasks=names())
         if meta is not None and rel.meta is None:
             rel.meta = meta
         validation = verify_release(rel, legacy_keys=legacy_keys)
@@ -195,7 +223,8 @@ def release_stage(out_dir: str | os.PathLike, *, inputs=()):
 
 
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, inputs=(), context: dict | None = None) -> dict:
+                  out_dir: str | Path, *, inputs=(), context: dict | None = None, answer_interface: dict | None = None
+                  ) -> dict:
     """Write the release atomically; returns the validation object. The rows carry the options the
     task runs built through the option stage (:mod:`resti_lib.options.stage`); they ship unchanged.
     ``inputs``: paths the release is made from (the release folder may not be one of them, nor hold
@@ -211,11 +240,13 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
         st.write("excluded.jsonl", jsonl_text(excluded, sort_keys=True).encode("utf-8"))
         st.write("provenance.parquet", _parquet_bytes(provenance))
         validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]),
-                               meta=release_meta(accepted, excluded, {}, context=context))
+                               meta=release_meta(accepted, excluded, {}, context=context,
+                                                 answer_interface=answer_interface))
         if not validation["passed"]:
             raise InvariantError(f"the assembled release fails verify: {failing_checks(validation)}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
-        st.seal(release_meta(accepted, excluded, st.artifacts(names), context=context), names)
+        st.seal(release_meta(accepted, excluded, st.artifacts(names), context=context,
+                             answer_interface=answer_interface), names)
     return validation
 
 
@@ -238,10 +269,10 @@ def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path
              context: dict | None = None) -> dict:
     """Read the legacy benchmark and every task's outputs, then :func:`write_release`."""
     _lean_arrow_pool()
-    legacy, _ = load_legacy(legacy_path, strict=False)
-    accepted, excluded, provenance = collect(Path(tasks_dir), legacy)
+    legacy, _ = load_legacy(legacy_path, strict=False, known_tasks=names())
+    accepted, excluded, provenance, answer_interface = collect(Path(tasks_dir), legacy)
     return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir],
-                         context=context)
+                         context=context, answer_interface=answer_interface)
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

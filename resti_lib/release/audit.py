@@ -18,6 +18,8 @@ from ..io.benchmark import load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
 from ..options.attacks import attack_table, headline, select, strongest
+from ..tasks import interface
+from ..tasks import names as task_names
 from .verify import verify_release
 
 # Reference figures of the report for the rebuilt v5 options (section "Repair: regenerated
@@ -74,10 +76,10 @@ def audit_release(release: str | Path, *, label: str, out_dir: str | Path, alpha
     :func:`attacks.attack_table`); write ``validation_<label>.json``, ``attacks_<label>.*`` and
     ``attacks_<label>_headline.*``."""
     out_dir = Path(out_dir)
-    rel = load_release(release, strict=False)
+    rel = load_release(release, strict=False, known_tasks=task_names())
     validation = verify_release(rel)
     names = select_attacks(attacks, families, fast=fast or learned is False)
-    table = attack_table(rel.accepted.to_dict("records"), families="all", attacks=names, alpha=alpha,
+    table = attack_table(rel.accepted.to_dict("records"), iface=interface(), families="all", attacks=names, alpha=alpha,
                          learned=learned, groups=groups, progress=True)
     files = [out_dir / f"validation_{label}.json"]
     atomic_write_bytes(files[0], (json.dumps(validation, indent=2, ensure_ascii=False) + "\n").encode())
@@ -125,8 +127,8 @@ def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05
     from ..io.benchmark import load_legacy
     from ..options.learned import attack_table_with_learned
 
-    df, _ = load_legacy(legacy, strict=False)
-    table = attack_table_with_learned(df.to_dict("records"), alpha=alpha,
+    df, _ = load_legacy(legacy, strict=False, known_tasks=task_names())
+    table = attack_table_with_learned(df.to_dict("records"), iface=interface(), alpha=alpha,
                                       attacks=None if attacks in (None, "all") else select_attacks(attacks),
                                       learned=None if learned is True else learned, groups=groups,
                                       families=families)

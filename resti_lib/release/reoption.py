@@ -30,31 +30,29 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .. import SOURCES, TASKS, __version__, paths
+from .. import SOURCES, __version__, paths
 from ..errors import InputError, OptionError, ReoptionError
 from ..io.benchmark import jsonl_text, load_release, rows_to_parquet_bytes
 from ..io.figures import save_figure
 from ..io.files import read_bytes, read_jsonl, sha256_bytes
 from ..options.learned import LearnedConfig, attack_table_with_learned
-from ..options.spec import load_option_params
 from ..options.stage import build_options
 from ..options.structural import evaluation_subset, structural_leaks
+from ..tasks import interface, names
 
 DEFAULT_RELEASE = "${SHARED}/data/resti_v5"
 ARTIFACTS = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subset.json")
 
 
-def reoption_records(records: list[dict], *, seed: int = 0, options: dict | None = None,
-                     extras: dict | None = None, progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
+def reoption_records(records: list[dict], *, iface, seed: int = 0, extras: dict | None = None,
+                     progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
     """New candidates and letters for every row through the option stage
-    (:func:`resti_lib.options.stage.build_options`); returns (rows, evidence).
-
-    ``options``: overrides of ``params/options.yaml`` (same nesting). A row whose options cannot
-    be built stops the rebuild (a release's rows cannot be dropped here).
+    (:func:`resti_lib.options.stage.build_options`) under the answer interface ``iface``; returns
+    (rows, evidence). A row whose options cannot be built stops the rebuild (a release's rows
+    cannot be dropped here).
     """
-    params = load_option_params(options)
     try:
-        rows, ev, _ = build_options(records, seed=seed, params=params, extras=extras, progress=progress)
+        rows, ev, _ = build_options(records, iface=iface, seed=seed, extras=extras, progress=progress)
     except OptionError as e:
         raise ReoptionError(str(e)) from None
     return rows, ev
@@ -140,24 +138,28 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
                      *, seed: int = 0, options: dict | None = None) -> ReoptionResult:
     """Read and check a release, rebuild its options, write and verify the new release, publish it
     atomically (:func:`resti_lib.release.assemble.release_stage`: never over the input, nor over a folder
-    that resti did not write)."""
+    that resti did not write). ``options``: overrides of the option params, on top of those the input
+    records (``answer_interface`` in its ``release.json``; else ``params/options.yaml``). The params
+    the rebuild used are written under ``answer_interface`` in the new ``release.json``, which
+    ``resti verify`` reads back."""
     from .assemble import failing_checks, release_stage
+    from .verify import release_interface
 
     t0 = time.perf_counter()
     src = paths.resolve(release)
     out = paths.resolve(out_dir)
     with release_stage(out, inputs=[src]) as st:
-        rel = load_release(src, strict=True)
+        rel = load_release(src, strict=True, known_tasks=names())
         check_input(rel)
+        iface, _ = release_interface(rel, options=options)
         if rel.accepted_file is not None and rel.accepted_file.suffix == ".jsonl":
             # the rows exactly as written (field order and value types), not through a data frame
             records = read_jsonl(rel.accepted_file)
         else:
             records = rel.accepted.to_dict("records")
-        opts = load_option_params(options)
-        rows, ev = reoption_records(records, seed=seed, options=options)
-        leaks = structural_leaks(rows, opts)
-        subset = evaluation_subset(rows, leaks, seed=seed)
+        rows, ev = reoption_records(records, iface=iface, seed=seed)
+        leaks = structural_leaks(rows, iface)
+        subset = evaluation_subset(rows, iface, leaks, seed=seed)
         st.write("resti.jsonl", jsonl_text(rows).encode("utf-8"))
         st.write("resti.parquet", rows_to_parquet_bytes(rows))
         st.write("excluded.jsonl", read_bytes(rel.excluded_file) if rel.excluded_file is not None else b"")
@@ -168,7 +170,8 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
                 b = read_bytes(f)
                 src_digests[f.name] = {"bytes": len(b), "sha256": sha256_bytes(b)}
         meta = release_meta(rows, rel.excluded, st.artifacts(ARTIFACTS), source_meta=rel.meta,
-                            source_digests=src_digests, seed=seed, options=opts)
+                            source_digests=src_digests, seed=seed, options=iface.options)
+        meta["answer_interface"] = iface.to_dict()
         meta["structural_leaks"] = json.loads(leaks.to_json(orient="records"))
         st.seal(meta, ARTIFACTS)
         validation = st.verify()
@@ -182,8 +185,9 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
 def attack_tables(before: list[dict], after: list[dict], *, alpha: float = 0.05,
                   learned: LearnedConfig | bool | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The attack table (rule attacks + ``learned_blind``, Holm within each) of input and output."""
-    return (attack_table_with_learned(before, alpha=alpha, learned=learned),
-            attack_table_with_learned(after, alpha=alpha, learned=learned))
+    iface = interface()
+    return (attack_table_with_learned(before, iface=iface, alpha=alpha, learned=learned),
+            attack_table_with_learned(after, iface=iface, alpha=alpha, learned=learned))
 
 
 def side_by_side(before: pd.DataFrame, after: pd.DataFrame) -> pd.DataFrame:
@@ -191,7 +195,7 @@ def side_by_side(before: pd.DataFrame, after: pd.DataFrame) -> pd.DataFrame:
     cols = ["picked", "hits", "accuracy", "p_value", "significant"]
     key = ["attack", "task", "source"]
     m = before[key + ["n_rows"] + cols].merge(after[key + cols], on=key, how="outer", suffixes=("_in", "_out"))
-    order = {t: i for i, t in enumerate(TASKS)}
+    order = {t: i for i, t in enumerate(names())}
     src = {s: i for i, s in enumerate(SOURCES)}
     m["_t"] = m["task"].map(order)
     m["_s"] = m["source"].map(lambda s: src.get(s, 99))
@@ -211,7 +215,7 @@ def strongest_by_task(table: pd.DataFrame, *, source: str | None = None) -> pd.D
                     "learned_accuracy": float(lb["accuracy"].iloc[0]) if len(lb) else float("nan"),
                     "learned_p": float(lb["p_value"].iloc[0]) if len(lb) else float("nan")})
     df = pd.DataFrame(out)
-    order = {t: i for i, t in enumerate(TASKS)}
+    order = {t: i for i, t in enumerate(names())}
     srcs = {s: i for i, s in enumerate(SOURCES)}
     df["_t"] = df["task"].map(order)
     df["_s"] = df["source"].map(lambda s: srcs.get(s, 99))

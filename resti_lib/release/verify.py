@@ -21,11 +21,13 @@ import stat
 from collections import Counter
 from pathlib import Path
 
-from .. import LETTERS, TASKS
+from .. import LETTERS
+from .. import tasks as task_registry
 from ..errors import InputError
 from ..io.benchmark import Release, load_release
 from ..io.files import decode_text, file_kind, read_bytes, sha256_file
 from ..options.checks import ROW_CHECKS, parse_row
+from ..options.spec import Interface, deep_merge
 
 MAX_LISTED = 200  # failing ids listed per check (the count is always complete)
 
@@ -60,7 +62,7 @@ def summarize(rel: Release) -> dict:
     letters = Counter(_hashable(a) for a in _column(acc, "Answer"))
     exc_task = Counter(_hashable(r.get("task")) for r in rel.excluded)
     exc_source = Counter(_hashable(r.get("source")) for r in rel.excluded)
-    task_order = {t: i for i, t in enumerate(TASKS)}
+    task_order = {t: i for i, t in enumerate(task_registry.names())}
 
     def ordered(c: Counter) -> dict:
         return dict(sorted(c.items(), key=lambda kv: str(kv[0])))
@@ -281,9 +283,29 @@ def integrity_checks(rel: Release) -> dict:
             "non_empty": _check_non_empty(rel), "unique_ids": _check_unique(rel)}
 
 
-def verify_release(rel: Release, *, legacy_keys: list[str] | None = None) -> dict:
+def release_interface(rel: Release, *, options: dict | None = None):
+    """The answer interface a release's options are checked against: the option params and task
+    rules recorded under ``answer_interface`` in its ``release.json`` (what they were built with),
+    else this version's defaults (``params/options.yaml`` and each registered task's params), with
+    the question reader of each registered task; ``options``: overrides on top. Returns
+    ``(interface, where)``, ``where`` saying which."""
+    meta = rel.meta if isinstance(rel.meta, dict) else {}
+    record = meta.get("answer_interface")
+    iface = task_registry.interface().with_record(record, file=rel.root / "release.json" if rel.root else None)
+    if options:
+        iface = Interface(deep_merge(iface.options, options), iface.tasks)
+    where = "release.json answer_interface" if record is not None else \
+        "defaults of this resti version (release.json records no answer_interface)"
+    return iface, where
+
+
+def verify_release(rel: Release, *, legacy_keys: list[str] | None = None, iface=None) -> dict:
     """Run every check; returns the validation object (``passed`` is True when no check fails;
-    ``not_checked`` lists the checks that could not run, with the reason)."""
+    ``not_checked`` lists the checks that could not run, with the reason). The answer-interface
+    checks read ``iface`` (default: :func:`release_interface`, what the release records)."""
+    where = "given"
+    if iface is None:
+        iface, where = release_interface(rel)
     summary = summarize(rel)
     checks: dict[str, dict] = {}
     schema_fail: dict = {}
@@ -306,7 +328,7 @@ def verify_release(rel: Release, *, legacy_keys: list[str] | None = None) -> dic
     records = rel.accepted.to_dict("records")
     for i, r in enumerate(records):
         rid = next((r[c] for c in ("ReSTI ID", "Legacy Row Key") if isinstance(r.get(c), str) and r[c].strip()), i)
-        pr = parse_row(r, rid)
+        pr = parse_row(r, rid, iface)
         for name, fn in ROW_CHECKS.items():
             msg = fn(pr)
             if msg:
@@ -314,6 +336,7 @@ def verify_release(rel: Release, *, legacy_keys: list[str] | None = None) -> dic
     for name, fails in row_fail.items():
         checks[name] = _status(list(fails), messages=fails)
     out = dict(summary)
+    out["answer_interface"] = where
     out["checks"] = checks
     out["passed"] = all(c["status"] != "fail" for c in checks.values())
     return out
@@ -321,12 +344,12 @@ def verify_release(rel: Release, *, legacy_keys: list[str] | None = None) -> dic
 
 def verify_path(path: str | Path, *, legacy: str | Path | None = None) -> dict:
     """Load (non-strict, so every problem is reported) and verify a release folder or file."""
-    rel = load_release(path, strict=False)
+    rel = load_release(path, strict=False, known_tasks=task_registry.names())
     keys = None
     if legacy is not None:
         from ..io.benchmark import load_legacy
 
-        df, _ = load_legacy(legacy, strict=False)
+        df, _ = load_legacy(legacy, strict=False, known_tasks=task_registry.names())
         keys = list(df["Legacy Row Key"])
     return verify_release(rel, legacy_keys=keys)
 

@@ -3,7 +3,7 @@
 The page opens with what the run was made from (input, params digest, code and package versions:
 :mod:`resti_lib.run.runinfo`), then the headline (our release's counts, verdict shares and defect
 categories; the answer-interface audit of the reference release, its significant leaks first; the
-self-test, labelled synthetic), the figures in registry order (:data:`resti_lib.report.figures.FIGURES`)
+self-test, labelled synthetic), the figures in registry order (:func:`resti_lib.report.figures.figure_specs`)
 at full width, the tables of the report's text on the page and every other table linked by
 section, the rendered notebooks and the release files. Links are relative: it opens from disk,
 offline (no script, no remote resource).

@@ -14,7 +14,6 @@ import matplotlib
 import numpy as np
 import pandas as pd
 
-from .. import TASKS
 from ..io.figures import FULL_WIDTH_IN, pyplot, save_figure, styled
 from ..options.power import clopper_pearson
 
@@ -32,7 +31,7 @@ def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_l
     """
     plt = pyplot()
     t = table[(table["source"] == "ALL") & (table["picked"] > 0)].copy()
-    tasks = [x for x in TASKS if x in set(t["task"])] + sorted(set(t["task"]) - set(TASKS))
+    tasks = list(dict.fromkeys(t["task"]))  # the table's own (task registry) order
     ncol = 2 if len(tasks) > 1 else 1
     nrow = max(1, -(-len(tasks) // ncol))
     per_row = [max((t["task"] == x).sum() for x in tasks[r * ncol:(r + 1) * ncol]) for r in range(nrow)] \

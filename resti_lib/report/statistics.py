@@ -11,7 +11,7 @@ from collections import Counter
 
 import pandas as pd
 
-from .. import SOURCES, TASKS
+from .. import SOURCES
 from ..defects import DEFECTS, REPORT_CATEGORIES
 
 # the power of the attack tests lives beside the attack table (the options layer cannot import this one)
@@ -22,6 +22,7 @@ from ..options.power import (  # noqa: F401
     critical_hits,
     min_detectable_accuracy,
 )
+from ..tasks import interface, names
 
 VERDICT_ORDER = ("retained", "corrected", "re-contracted", "excluded")
 QUESTION_DEFECTS = ("pose_time_omitted", "ambiguous_subject", "unnamed_frame", "unit_tag_missing",
@@ -34,7 +35,8 @@ SOURCE_DEFECTS = ("grounding_alignment_omitted", "orientation_xz_plane", "waymo_
 
 
 def _task_index(tasks) -> list[str]:
-    return [t for t in TASKS if t in set(tasks)] + sorted(set(tasks) - set(TASKS))
+    order = names()
+    return [t for t in order if t in set(tasks)] + sorted(set(tasks) - set(order))
 
 
 def _defects(prov: pd.DataFrame) -> pd.DataFrame:
@@ -125,7 +127,7 @@ def exclusion_reason_table(excluded: list[dict]) -> pd.DataFrame:
     c = Counter((r["task"], code) for r in excluded for code in r["reason_codes"])
     rows = [{"task": t, "reason": code, "rows": n} for (t, code), n in c.items()]
     df = pd.DataFrame(rows, columns=["task", "reason", "rows"])
-    order = {t: i for i, t in enumerate(TASKS)}
+    order = {t: i for i, t in enumerate(names())}
     return df.sort_values(["task", "rows"], key=lambda s: s.map(order) if s.name == "task" else -s,
                           kind="stable").reset_index(drop=True)
 
@@ -154,7 +156,7 @@ def attacks_before_after(before: pd.DataFrame, after: pd.DataFrame) -> pd.DataFr
 def reference_comparison(ours: dict, reference: dict) -> pd.DataFrame:
     """Our release's counts beside a reference release's (validation objects of ``resti verify``)."""
     rows = []
-    for task in TASKS:
+    for task in names():
         rows.append({"task": task,
                      "ours accepted": ours["by_task"].get(task, 0),
                      "ours excluded": ours["excluded_by_task"].get(task, 0),
@@ -291,7 +293,7 @@ def pooled_scalar_attacks(legacy: pd.DataFrame, *, alpha: float = 0.05) -> pd.Da
         rows.append({**r, "Task": SCALAR_POOL})
     if not rows:
         return pd.DataFrame(columns=["attack", "rows", "picked", "hits", "accuracy", "p_value", "significant"])
-    t = attack_table(rows, alpha=alpha)
+    t = attack_table(rows, iface=interface(), alpha=alpha)
     t = t[(t["source"] == "ALL") & (t["picked"] > 0)]
     t = t.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
     return (t.rename(columns={"n_rows": "rows"})[["attack", "rows", "picked", "hits", "accuracy", "p_value",

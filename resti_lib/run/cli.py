@@ -67,13 +67,15 @@ def _cmd_attack(a) -> int:
     from ..io.benchmark import load_release
     from ..options.attacks import attack_table, headline, select
     from ..release.audit import format_headline
+    from ..tasks import interface
+    from ..tasks import names as task_names
 
     try:
         names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
     except ValueError as e:
         print(f"resti attack: {e}", file=sys.stderr)
         return EXIT_INPUT
-    rel = load_release(a.path, strict=False)
+    rel = load_release(a.path, strict=False, known_tasks=task_names())
     records, skipped = attack_rows(rel)
     if rel.meta_error is not None:
         print(f"resti attack: input error: file {rel.meta_file}: {rel.meta_error} (the rows are attacked; "
@@ -86,7 +88,7 @@ def _cmd_attack(a) -> int:
     if not records:
         print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
         return EXIT_INPUT
-    table = attack_table(records, families="all", attacks=names, alpha=a.alpha, progress=True)
+    table = attack_table(records, iface=interface(), families="all", attacks=names, alpha=a.alpha, progress=True)
     head = headline(table)
     shown = head if a.headline else table
     if a.format == "json":
@@ -156,10 +158,9 @@ def _cmd_run(a) -> int:
 def _stage_help() -> str:
     """The stages of params/default.yaml, for ``resti run --help``."""
     try:
-        from .. import paths
-        from .notebooks import load_params
+        from .plan import main_config
 
-        stages = load_params(paths.PARAMS / "default.yaml").get("stages") or []
+        stages = main_config().get("stages") or []
         names = [f"{s['notebook']} ({s['notebook'].split('_', 1)[-1]}{', on demand' if s.get('on_demand') else ''})"
                  for s in stages]
     except (InputError, OSError, KeyError, TypeError, AttributeError):

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from .. import paths
 from ..errors import InputError
-from .notebooks import NotebookError, load_params, notebook_parameters, run_notebook
-from .plan import check_stages, closure, downstream, match_only, notebook_of, plan, stage_params
+from .notebooks import NotebookError, notebook_parameters, run_notebook
+from .plan import closure, downstream, main_config, match_only, notebook_of, plan, stage_params
 
 REPORT = "report"  # the index page: a last stage of its own, run by this process
 
@@ -157,8 +157,7 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
 
     t_start = time.perf_counter()
     params_file = params_file or paths.PARAMS / "default.yaml"
-    cfg = load_params(params_file)
-    check_stages(cfg, params_file)
+    cfg = main_config(params_file)
     with run_lock(paths.resolve(cfg.get("output_dir") or "outputs")):
         return _run(cfg, only=only, jobs=jobs, force=force, t_start=t_start)
 

@@ -1,7 +1,10 @@
 """The stages of the main job: which notebooks run, with which params, in which wave, and which
 stage needs which.
 
-``params/default.yaml`` lists the stages; each stage is a notebook with its own params file.
+Every registered task is a stage of the first wave (its notebook, its params file beside the main
+params file, else in ``params/``); ``params/default.yaml`` lists the other stages (the release and
+report, the answer-interface audits) and may list a task's notebook to set its params or wave.
+Each stage is a notebook with its own params file.
 Keys of ``default.yaml`` that a notebook's ``parameters`` cell declares are passed to it too, so
 source roots and the legacy path are stated once.
 """
@@ -13,6 +16,36 @@ from pathlib import Path
 from .. import paths
 from ..errors import InputError
 from .notebooks import load_params, notebook_parameters
+
+TASK_WAVE = 1
+
+
+def task_stages(params_file=None) -> list[dict]:
+    """One stage per registered task, in notebook order: ``{notebook, params, wave}``. The params
+    file is ``<params_name>.yaml`` beside ``params_file`` when there is one, else in ``params/``."""
+    from ..tasks import all_tasks
+
+    here = paths.resolve(params_file).parent if params_file else paths.PARAMS
+    out = []
+    for t in sorted(all_tasks(), key=lambda t: t.notebook):
+        own = here / f"{t.params_name}.yaml"
+        out.append({"notebook": t.notebook, "params": str(own if own.is_file() else paths.PARAMS / own.name),
+                    "wave": TASK_WAVE})
+    return out
+
+
+def main_config(params_file=None) -> dict:
+    """The main job's params (default ``params/default.yaml``) with its full stage list: the task
+    stages (:func:`task_stages`, unless the params list the notebook themselves), then the listed
+    stages (checked first: :func:`check_stages`)."""
+    params_file = params_file or paths.PARAMS / "default.yaml"
+    cfg = load_params(params_file)
+    check_stages(cfg, params_file)
+    listed = cfg.get("stages") or []
+    if isinstance(listed, list):
+        named = {s.get("notebook") for s in listed if isinstance(s, dict)}
+        cfg["stages"] = [s for s in task_stages(params_file) if s["notebook"] not in named] + listed
+    return cfg
 
 
 def check_stages(cfg: dict, params_file) -> None:

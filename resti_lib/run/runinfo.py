@@ -133,10 +133,9 @@ def default_context(params_file: str | Path | None = None, notebook: str = "99_r
     """The run context of a main params file (default ``params/default.yaml``) for ``notebook`` and
     the stages it needs, from their current params (for a notebook run on its own; ``resti run``
     passes the block itself)."""
-    from .notebooks import load_params
-    from .plan import closure, plan, stage_params
+    from .plan import closure, main_config, plan, stage_params
 
-    cfg = load_params(params_file or Path(paths.PARAMS) / "default.yaml")
+    cfg = main_config(params_file or Path(paths.PARAMS) / "default.yaml")
     stages = cfg.get("stages") or []
     common = {k: v for k, v in cfg.items() if k != "stages"}
     _, needs = plan(stages, common)

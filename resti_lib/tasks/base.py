@@ -39,17 +39,18 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from .. import SCENE_OF_SOURCE
+from .. import SCENE_OF_SOURCE, SOURCES
 from .. import defaults as D
 from .. import values as V
-from ..adjudicate import Diagnosis, Rule, compare_scalar
+from ..adjudicate import Diagnosis, Rule, compare_scalar, rule_for
 from ..contract import MISSING_DEFECTS, Contract
 from ..errors import ContractError
 from ..io.benchmark import jsonl_text, parse_key
 from ..io.files import atomic_write_bytes
 from ..measure import Measured, measure
 
-KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label")
+KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label")  # kinds of an AnswerSpec
+VALUE_KINDS = ("scalar", "box", "pose", "trajectory", "label")  # kinds of a parsed value (an angle is a scalar)
 
 
 @dataclass
@@ -170,29 +171,75 @@ class Case:
 
 
 class Task:
-    """A task plug-in (module docstring). Subclass, set the class attributes, implement the hooks,
-    and register it with :func:`resti_lib.tasks.register_task`.
+    """A task plug-in (module docstring): the single descriptor of a task. Subclass, set the class
+    attributes, implement the hooks, and register it with :func:`resti_lib.tasks.register_task`.
 
     Class attributes
     ----------------
-    name : the legacy ``Task`` value. params_name : ``params/<params_name>.yaml`` (and the notebook
-    ``notebooks/NN_<params_name>.ipynb``) hold its parameters and their defaults. legacy_kind : the
-    :mod:`resti_lib.values` class(es) a legacy Answer Detail must parse to. operators : the measure
-    operators its values come from. missing_defects : question-layer defect code per missing contract
-    part.
+    name : the legacy ``Task`` value. params_name : ``params/<params_name>.yaml`` holds its
+    parameters and their defaults. notebook : its notebook ``notebooks/<notebook>.ipynb`` (``NN_`` +
+    params_name), a stage of the main job. order : its place in tables and in the release (the
+    benchmark's order). answer_kind : the :mod:`resti_lib.values` kind of its answers (``scalar``,
+    ``box``, ``pose``, ``trajectory``, ``label``; an angle is a scalar). rule_key : the params key of
+    its comparison rule (:meth:`rule`). quantity : what its questions measure, when
+    :meth:`quantity_of` does not read it from the question. figures : the figures its notebook
+    writes, ``{suffix: caption}`` for ``outputs/figures/<notebook>_<suffix>.png`` (a suffix may be a
+    glob). legacy_kind : the :mod:`resti_lib.values` class(es) a legacy Answer Detail must parse
+    to. operators : the measure operators its values come from. missing_defects :
+    question-layer defect code per missing contract part.
     """
 
     name: ClassVar[str] = ""
     params_name: ClassVar[str] = ""
+    notebook: ClassVar[str] = ""
+    order: ClassVar[int] = 100
+    answer_kind: ClassVar[str] = ""
+    rule_key: ClassVar[str | None] = "rule"
+    quantity: ClassVar[str] = "value"
+    figures: ClassVar[dict[str, str]] = {}
     legacy_kind: ClassVar[type | tuple | None] = None
     operators: ClassVar[tuple[str, ...]] = ()
     missing_defects: ClassVar[dict] = {k: v for k, v in MISSING_DEFECTS.items() if k in ("unit", "subject")}
     setting_overrides: ClassVar[tuple[str, ...]] = ()
 
+    @classmethod
+    def descriptor_problems(cls) -> list[str]:
+        """What is wrong with the class attributes (empty when the task can be registered)."""
+        out = []
+        if not isinstance(cls.name, str) or not cls.name.strip():
+            out.append("no task name")
+        if not re.fullmatch(r"[a-z][a-z0-9_]*", str(cls.params_name)):
+            out.append(f"params_name {cls.params_name!r} is not a lower-case file stem")
+        elif not re.fullmatch(r"\d\d_" + re.escape(cls.params_name), str(cls.notebook)):
+            out.append(f"notebook {cls.notebook!r} is not NN_{cls.params_name}")
+        if cls.answer_kind not in VALUE_KINDS:
+            out.append(f"answer_kind {cls.answer_kind!r} is not one of {VALUE_KINDS}")
+        if not isinstance(cls.figures, dict) or not all(isinstance(k, str) and isinstance(v, str) and v.strip()
+                                                        for k, v in cls.figures.items()):
+            out.append("figures must map a file-name suffix to a caption")
+        for hook in ("read_contract", "reconstruct", "rewrite"):
+            if getattr(cls, hook) is getattr(Task, hook):
+                out.append(f"no {hook} hook")
+        return out
+
     # -- parameters
     def settings(self, params: dict | None) -> dict:
         """``params/<params_name>.yaml`` overridden by ``params`` (defaults written once)."""
         return D.merged(self.params_name, params) if self.params_name else dict(params or {})
+
+    def rule(self, settings: dict, source: str) -> Rule:
+        """The comparison rule of the task on ``source`` (params ``rule_key``; no key: exact)."""
+        return rule_for(settings, source, self.rule_key) if self.rule_key else Rule()
+
+    def quantity_of(self, question: str) -> str:
+        """What a (repaired) question of the task measures; the option stage and the attacks read it."""
+        return self.quantity
+
+    def interface(self, settings: dict):
+        """What the answer interface knows of this task under ``settings`` (its params)."""
+        from ..options.spec import TaskInterface
+
+        return TaskInterface(self.answer_kind, {s: self.rule(settings, s) for s in SOURCES}, self.quantity_of)
 
     # -- hooks
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
@@ -308,17 +355,18 @@ class TaskResult:
     excluded: list
     provenance: pd.DataFrame
     option_seconds: float = 0.0  # time spent in the option stage (reported by the scale benchmark)
+    interface: dict = field(default_factory=dict)  # the answer interface the options were built with
 
 
-def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option_params: dict | None = None
-             ) -> TaskResult:
+def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface) -> TaskResult:
     """Options, letters, ReSTI rows, exclusion records and provenance for one task's outcomes.
 
-    ``option_params``: overrides of ``params/options.yaml``. A row whose options cannot be built
-    under the constraints is excluded (``no_valid_options``), never shipped with weaker options.
-    Outcomes come back in legacy row order.
+    ``iface``: the run's answer interface (:class:`resti_lib.options.spec.Interface`: the option
+    params and the task's comparison rule and question reader), recorded with the outputs so that
+    the release and ``resti verify`` check the options against the params they were built with. A
+    row whose options cannot be built under the constraints is excluded (``no_valid_options``),
+    never shipped with weaker options. Outcomes come back in legacy row order.
     """
-    from ..options.spec import load_option_params
     from ..options.stage import build_options
 
     outcomes = sorted(outcomes, key=lambda o: o.row)
@@ -343,8 +391,7 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
             "Answer Detail": detail, "ID": int(legacy_row["ID"]), "scene": SCENE_OF_SOURCE[o.source],
             "ReSTI ID": rid, "Legacy Row Key": o.key})
     t_opt = time.perf_counter()
-    built, ev, failed = build_options(rows, seed=seed, params=load_option_params(option_params), extras=extras,
-                                      on_failure="skip")
+    built, ev, failed = build_options(rows, iface=iface, seed=seed, extras=extras, on_failure="skip")
     t_opt = time.perf_counter() - t_opt
     for rid, problem in failed.items():
         index[rid].exclude("no_valid_options", option_error=problem)
@@ -376,12 +423,14 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, option
             "legacy_detail": o.legacy_detail, "new_detail": new_detail,
             "option_spec": _json(o.option_spec) if o.option_spec is not None and o.verdict != "excluded" else None,
         })
-    return TaskResult(accepted, excluded, pd.DataFrame(prov), t_opt)
+    return TaskResult(accepted, excluded, pd.DataFrame(prov), t_opt, iface.to_dict())
 
 
 def write_task_outputs(result: TaskResult, out_dir: str | Path) -> dict:
-    """``accepted.jsonl``, ``excluded.jsonl`` and ``provenance.parquet`` of one task (atomic writes)."""
+    """``accepted.jsonl``, ``excluded.jsonl``, ``provenance.parquet`` and ``interface.json`` (the
+    answer interface its options were built with) of one task (atomic writes)."""
     out_dir = Path(out_dir)
+    atomic_write_bytes(out_dir / "interface.json", (_json(result.interface) + "\n").encode("utf-8"))
     atomic_write_bytes(out_dir / "accepted.jsonl", jsonl_text(result.accepted).encode("utf-8"))
     atomic_write_bytes(out_dir / "excluded.jsonl", jsonl_text(result.excluded, sort_keys=True).encode("utf-8"))
     buf = io.BytesIO()

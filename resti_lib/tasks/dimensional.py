@@ -168,8 +168,27 @@ def unsupported(question: str | None) -> Exclude:
 class Dimensional(Task):
     name = TASK
     params_name = "dimensional"
+    notebook = "03_dimensional"
+    order = 2
+    answer_kind = "scalar"
+    quantity = "distance"
+    figures = {
+        "legacy_vs_source": ("Dimensional Measurement: legacy against source value per source (accepted rows; dashed: equal)."),
+    }
     legacy_kind = V.Scalar
     operators = ("dimension", "distance_to_camera", "object_distance")
+
+
+    def quantity_of(self, question: str) -> str:
+        """``length``, ``width`` or ``height`` of an object, its ``distance_to_camera``, the
+        ``surface_distance`` of two objects, else a ``distance``."""
+        q = " ".join(str(question or "").lower().split())
+        if "surface-to-surface" in q or "surface to surface" in q:
+            return "surface_distance"
+        if "distance from the camera" in q:
+            return "distance_to_camera"
+        m = re.search(r"what is the (?:approximate )?(length|width|height)\b(?: \([^)]*\))? of\b", q)
+        return m.group(1) if m else "distance"
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, q = base_contract(row, video_map=video_map)

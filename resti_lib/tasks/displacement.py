@@ -84,10 +84,22 @@ def question_text(op: str, subject: str, t0: float, t1: float) -> str:
 class Displacement(MotionTask):
     name = TASK
     params_name = "displacement"
+    notebook = "05_displacement"
+    order = 4
+    answer_kind = "scalar"
+    quantity = "displacement"
+    figures = {
+        "legacy_vs_source": ("Displacement & Path Length: legacy against source value per source (accepted rows; dashed: "
+                             "equal)."),
+    }
     legacy_kind = V.Scalar
     operators = ("displacement", "path_length")
 
     operator_of = staticmethod(operator_of)
+
+
+    def quantity_of(self, question: str) -> str:
+        return operator_of(question)[0]
 
     def reconstruct(self, case: Case) -> None:
         c, params, r = case.contract, case.params, case.row

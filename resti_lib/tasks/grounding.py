@@ -440,6 +440,18 @@ def _excl_ev(ref_ev: dict, view: FrameView) -> dict:
 class Grounding(Task):
     name = TASK
     params_name = "grounding"
+    notebook = "01_grounding"
+    order = 1
+    answer_kind = "box"
+    rule_key = "centre_abs_tol_m"
+    quantity = "box"
+    figures = {
+        "topdown": ("3D Video Grounding, one row seen from above: source boxes, the camera at the asked frame, the "
+                    "legacy centre mapped back into the scene and the corrected centre; the dashed line joins the "
+                    "legacy centre to the target (3D length)."),
+        "distances": ("3D Video Grounding: distance of the legacy centre to the nearest source object and of the "
+                      "corrected centre to its target, per source (log scale; bars: medians)."),
+    }
     legacy_kind = V.Box
     operators = ("box_in_camera",)
     setting_overrides = ("visibility",)  # its own frustum test
@@ -670,18 +682,6 @@ def exclusion_table(outcomes: list[Outcome]) -> pd.DataFrame:
                      "legacy_points_at": e.get("diagnosis", {}).get("legacy_points_at"),
                      "error": e.get("error")})
     return pd.DataFrame(recs)
-
-
-def attack_tables(run, *, alpha: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Option-only attacks on the repaired rows and on the legacy rows of the task (before)."""
-    from ..options.attacks import attack_table
-
-    after = attack_table(run.result.accepted, alpha=alpha)
-    before = attack_table(run.legacy.to_dict("records"), alpha=alpha)
-    return after, before
-
-
-# ==================================================================================== figures
 
 
 def _pick_case(outcomes: list[Outcome], row: int | None) -> Outcome | None:

@@ -182,6 +182,18 @@ def rewrite_question(t0: float, t1: float, shortened_from: float | None) -> str:
 class Orientation(Task):
     name = TASK
     params_name = "orientation"
+    notebook = "02_orientation"
+    order = 6
+    answer_kind = "scalar"
+    rule_key = "angle_abs_tol_deg"
+    quantity = "heading_change"
+    figures = {
+        "endpoints": ("Ego-Centric Orientation, one row: (a) the camera column the legacy operator uses, on the "
+                      "vertical X–Z plane; (b) optical forward on the gravity-horizontal plane, the repaired heading "
+                      "change. Blue: start; gold: end."),
+        "legacy_vs_operators": ("Ego-Centric Orientation: the legacy value against the X–Z operator (left) and against the "
+                                "repaired gravity-horizontal heading (right)."),
+    }
     legacy_kind = V.Scalar
     operators = ("heading_change",)
     missing_defects: ClassVar[dict] = {}
@@ -320,16 +332,6 @@ def diagnosis_table(outcomes: list[Outcome]) -> pd.DataFrame:
                      "invariance_error_deg": d.get("invariance_error_deg"),
                      "defects": ",".join(sorted(set(o.defects)))})
     return pd.DataFrame(recs)
-
-
-def attack_tables(run, *, alpha: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Option-only attacks on the repaired rows and on the legacy rows of the task (before)."""
-    from ..options.attacks import attack_table
-
-    return attack_table(run.result.accepted, alpha=alpha), attack_table(run.legacy.to_dict("records"), alpha=alpha)
-
-
-# ==================================================================================== figures
 
 
 def _arc(ax, a0: float, a1: float, r: float, color: str, label: str) -> None:

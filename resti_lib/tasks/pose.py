@@ -221,6 +221,15 @@ def camera_track(ctx, c: Contract, params: dict) -> tuple[PoseTrack, tuple, list
 class Pose(Task):
     name = TASK
     params_name = "pose"
+    notebook = "08_pose"
+    order = 8
+    answer_kind = "pose"
+    rule_key = "compare_abs_tol"
+    quantity = "pose"
+    figures = {
+        "translation_change": ("Pose Estimation: translation change between each wrong-timestamp legacy matrix and the source "
+                               "pose at the asked time (Waymo)."),
+    }
     legacy_kind = V.Pose
     operators = ("pose",)
     setting_overrides = ("pose_rule",)  # the nearest sample, not interpolation

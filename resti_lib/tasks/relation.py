@@ -112,6 +112,15 @@ def question_text(source: str, *, a: str | None = None, b: str | None = None, t:
 class Relation(Task):
     name = TASK
     params_name = "relation"
+    notebook = "04_relation"
+    order = 3
+    answer_kind = "label"
+    rule_key = None
+    quantity = "relation"
+    figures = {
+        "margins": ("Spatial Relation, Omni6DPose pairs: lateral against depth offset; grey: no direction dominates "
+                    "by the ratio (excluded)."),
+    }
     legacy_kind = V.Label
     operators = ("mounted_relation", "relative_position")
     setting_overrides = ("visibility",)  # its own frustum test

@@ -31,8 +31,9 @@ from .. import paths
 from ..adjudicate import answer_layer_defects, group_shortcuts, read_legacy
 from ..errors import ContractError, InputError
 from ..io.benchmark import canonical_row_text, load_legacy
+from ..options.spec import Interface, load_option_params
 from ..sources.context import SourceContext
-from . import task_for
+from . import interface, names, task_for
 from .base import Case, Exclude, Outcome, Task, TaskResult, finalize, option_spec, slug, write_task_outputs
 
 COMMON_KEYS = ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root", "scannet_fps", "omni6d_fps",
@@ -65,10 +66,20 @@ class TaskRun:
     def defects(self) -> pd.Series:
         return pd.Series([d for o in self.outcomes for d in dict.fromkeys(o.defects)], dtype=object).value_counts()
 
+    def attack_tables(self, *, alpha: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """The option-only attack table of the task's accepted rows (the options it ships) and of
+        its legacy rows (a hit is the keyed letter), Holm within each: the one way a task notebook
+        tables its attacks."""
+        from ..options.attacks import attack_table
+
+        iface = interface()
+        return (attack_table(self.result.accepted, iface=iface, alpha=alpha),
+                attack_table(self.legacy.to_dict("records"), iface=iface, alpha=alpha))
+
 
 def legacy_rows_of(task: str, legacy_path) -> tuple[pd.DataFrame, list]:
     """The legacy rows of one task (non-strict: problems come back as records, rows are kept)."""
-    return load_legacy(paths.resolve(legacy_path), strict=False, tasks=[task])
+    return load_legacy(paths.resolve(legacy_path), strict=False, tasks=[task], known_tasks=names())
 
 
 def _excluded(r: dict, task: str, reason: str, defect: str, **evidence) -> Outcome:
@@ -242,7 +253,8 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
         o.legacy_detail = str(r.get("Answer Detail"))
         outcomes.append(o.exclude("malformed_row", field=p.field, problem=p.message))
     _answer_layer(outcomes, mine)
-    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)))
+    iface = Interface(load_option_params(), {t.name: t.interface(params)})
+    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)), iface=iface)
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(t.name)
     write_task_outputs(result, out_dir)
     return TaskRun(t.name, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)

@@ -20,7 +20,7 @@ from ..adjudicate import Rule, agrees_scalar, rule_for
 from ..sources.referents import noun_phrase
 from .base import Case, Outcome
 
-__all__ = ["attack_summary", "rule_for", "scatter_by_source", "subject_phrase", "tie_break_by_legacy", "to_unit",
+__all__ = ["rule_for", "scatter_by_source", "subject_phrase", "tie_break_by_legacy", "to_unit",
            "unit_for", "value_table", "verdict_counts"]
 
 
@@ -111,12 +111,3 @@ def verdict_counts(outcomes: list[Outcome]) -> pd.DataFrame:
     t = df.pivot_table(index=["source", "operator"], columns="verdict", aggfunc="size", fill_value=0)
     t["total"] = t.sum(axis=1)
     return t.reset_index()
-
-
-def attack_summary(accepted: list[dict], *, alpha: float = 0.05) -> pd.DataFrame:
-    """Option-only attacks on the task's accepted rows (per source and pooled), Holm over the table."""
-    from ..options.attacks import attack_table
-
-    if not accepted:
-        return pd.DataFrame()
-    return attack_table(accepted, alpha=alpha)

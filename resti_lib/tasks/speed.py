@@ -93,10 +93,23 @@ def question_text(op: str, subject: str, t0: float, t1: float, estimator: str | 
 class Speed(MotionTask):
     name = TASK
     params_name = "speed"
+    notebook = "06_speed"
+    order = 5
+    answer_kind = "scalar"
+    quantity = "speed"
+    figures = {
+        "statistics": ("Speed & Acceleration: the legacy 'speed' against displacement/Δt (circles) and path/Δt "
+                       "(triangles), per source: which statistic the legacy values are."),
+        "legacy_vs_source": ("Speed & Acceleration: legacy against source value under the clarified contract."),
+    }
     legacy_kind = V.Scalar
     operators = ("average_velocity", "average_speed", "acceleration")
 
     operator_of = staticmethod(operator_of)
+
+
+    def quantity_of(self, question: str) -> str:
+        return "acceleration" if operator_of(question)[0] == "acceleration" else "speed"
 
     def reconstruct(self, case: Case) -> None:
         c, params, r = case.contract, case.params, case.row

@@ -76,8 +76,23 @@ def question_text(t0: float, t1: float) -> str:
 class Trajectory(Task):
     name = TASK
     params_name = "trajectory"
+    notebook = "07_trajectory"
+    order = 7
+    answer_kind = "trajectory"
+    rule_key = "compare_abs_tol_m"
+    quantity = "trajectory"
+    figures = {
+        "paths": ("Trajectory Description: top-down camera paths of distinct Waymo segments with the turn windows "
+                  "and the samples that split the moves."),
+    }
     legacy_kind = V.Trajectory
     operators = ("trajectory",)
+
+
+    def rule(self, settings: dict, source: str) -> Rule:
+        """Each move's distance within half a printed unit + ``compare_abs_tol_m`` +
+        ``compare_rel_tol``·d (turns are compared on their own, ``compare_turn_tol_deg``)."""
+        return Rule(abs_tol=float(settings["compare_abs_tol_m"]), rel_tol=float(settings["compare_rel_tol"]))
 
     def read_contract(self, row: dict, video_map: dict | None = None) -> Contract:
         c, _ = base_contract(row, "trajectory", video_map=video_map)
