@@ -17,11 +17,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from resti_lib.tasks import names as _task_names
+
+TASK_NAMES = _task_names()
+
 CHILD = r"""
 import json, os, resource, sys, time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from resti_lib import TASKS
 from resti_lib.release.assemble import assemble
 from resti_lib.tasks.run import run_task
 import pandas as pd
@@ -40,7 +43,7 @@ if __name__ == "__main__":
               "output_dir": str(w / "out")}
     t0 = time.perf_counter()
     present = set(pd.read_parquet(params["legacy_benchmark"], columns=["Task"])["Task"])
-    tasks = [t for t in TASKS if t in present]
+    tasks = [t for t in TASK_NAMES if t in present]
     # like the main job: one process per task, as many at once as there are cores, the tasks that
     # took longest before first (the main job orders a wave by its last run's stage seconds)
     last = json.loads(sys.argv[2]) if len(sys.argv) > 2 else {}

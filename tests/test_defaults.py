@@ -13,10 +13,13 @@ import ast
 import pytest
 import yaml
 
-from resti_lib import TASKS, paths
+from resti_lib import paths
 from resti_lib.run.notebooks import notebook_parameters
+from resti_lib.tasks import names as _task_names
 from resti_lib.tasks import task_for
 from resti_lib.tasks.run import COMMON_KEYS
+
+TASK_NAMES = _task_names()
 
 
 def _yaml(name: str) -> dict:
@@ -29,7 +32,7 @@ def _notebook(task) -> str:
     return hits[0]
 
 
-@pytest.mark.parametrize("task_name", TASKS)
+@pytest.mark.parametrize("task_name", TASK_NAMES)
 def test_notebook_parameters_equal_the_yaml(task_name):
     task = task_for(task_name)
     want = {**{k: _yaml("default")[k] for k in COMMON_KEYS}, **_yaml(task.params_name)}
@@ -39,7 +42,7 @@ def test_notebook_parameters_equal_the_yaml(task_name):
     assert diff == {}
 
 
-@pytest.mark.parametrize("task_name", TASKS)
+@pytest.mark.parametrize("task_name", TASK_NAMES)
 def test_operator_settings_of_a_task_equal_the_operator_defaults(task_name):
     task = task_for(task_name)
     measure = _yaml("measure")
@@ -50,7 +53,7 @@ def test_operator_settings_of_a_task_equal_the_operator_defaults(task_name):
 
 def test_task_settings_are_the_yaml():
     # a task reads its defaults from its params file: nothing given, nothing else
-    for name in TASKS:
+    for name in TASK_NAMES:
         t = task_for(name)
         assert t.settings({}) == _yaml(t.params_name)
         assert t.settings({"seed": 3})["seed"] == 3

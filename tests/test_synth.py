@@ -20,10 +20,13 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from resti_lib import LETTERS, SOURCES, TASKS
+from resti_lib import LETTERS, SOURCES
 from resti_lib.defects import DEFECTS, REASONS
 from resti_lib.synth import LEGACY_COLUMNS, generate
 from resti_lib.synth.__main__ import main as synth_main
+from resti_lib.tasks import names as _task_names
+
+TASK_NAMES = _task_names()
 
 T_WAYMO_FROM_CV = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float)
 
@@ -465,7 +468,7 @@ def test_legacy_columns_and_names(world, legacy):
     assert tuple(pf.schema_arrow.names) == LEGACY_COLUMNS
     assert str(pf.schema_arrow.field("ID").type) == "int64"
     assert str(pf.schema_arrow.field("Candidates").type) == "string"
-    assert set(legacy["Task"]) == set(TASKS) and set(legacy["Source"]) == set(SOURCES)
+    assert set(legacy["Task"]) == set(TASK_NAMES) and set(legacy["Source"]) == set(SOURCES)
     assert set(legacy["QType"]) == {"Single Choice"}
     for r in legacy.itertuples(index=False):
         cand = json.loads(r.Candidates)

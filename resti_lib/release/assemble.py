@@ -137,7 +137,7 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
     """The row counts every ``release.json`` carries (``counts``, accepted by source and by task,
     exclusions by task, answer letters), computed once for both layouts (:func:`release_meta` and
     :func:`resti_lib.release.reoption.release_meta`). ``excluded_order``: ``task`` (the order of
-    :data:`resti_lib.TASKS`) or ``name``."""
+    :func:`resti_lib.tasks.names`) or ``name``."""
     by_task = Counter(r["Task"] for r in accepted)
     by_source = Counter(r["Source"] for r in accepted)
     ex_task = Counter(r.get("task") for r in excluded)
