@@ -106,7 +106,7 @@ def check_notebook(stem: str, params_yaml: str) -> None:
 
     from resti_lib import paths
     from resti_lib.run.notebooks import check_parameters, notebook_parameters
-    from resti_lib.tasks.run import COMMON_KEYS
+    from resti_lib.tasks.base import COMMON_KEYS
 
     nb_path = paths.NOTEBOOKS / f"{stem}.ipynb"
     task_keys = yaml.safe_load((paths.PARAMS / params_yaml).read_text())

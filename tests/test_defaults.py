@@ -17,7 +17,7 @@ from resti_lib import paths
 from resti_lib.run.notebooks import notebook_parameters
 from resti_lib.tasks import names as _task_names
 from resti_lib.tasks import task_for
-from resti_lib.tasks.run import COMMON_KEYS
+from resti_lib.tasks.base import COMMON_KEYS
 
 TASK_NAMES = _task_names()
 
@@ -55,7 +55,8 @@ def test_task_settings_are_the_yaml():
     # a task reads its defaults from its params file: nothing given, nothing else
     for name in TASK_NAMES:
         t = task_for(name)
-        assert t.settings({}) == _yaml(t.params_name)
+        common = {k: _yaml("default")[k] for k in COMMON_KEYS}
+        assert t.settings({}) == {**common, **_yaml(t.params_name)}
         assert t.settings({"seed": 3})["seed"] == 3
 
 

@@ -10,7 +10,7 @@ import yaml
 
 from resti_lib import paths
 from resti_lib.run.notebooks import notebook_parameters, run_notebook
-from resti_lib.tasks.run import COMMON_KEYS
+from resti_lib.tasks.base import COMMON_KEYS
 
 NOTEBOOKS = {"01_grounding": "grounding", "02_orientation": "orientation"}
 

@@ -198,15 +198,15 @@ def test_box_convention_majority_and_chance_agreement():
     assert rows[0][0].defects == [] and rows[5][0].defects == ["value_mismatch"]
     # the other way round: a lone axis-aligned match in a tight-box task is a chance agreement ...
     rows = [_row(True, False, "retained") for _ in range(4)] + [_row(False, True)]
-    D._adjudicate_boxes(rows, {})
+    D._adjudicate_boxes(rows, {"mixed_share": 0.25})  # the default of params/dimensional.yaml
     assert rows[4][0].verdict == "corrected" and "chance agreement" in rows[4][0].evidence["coincidence"]
     # ... unless the task is mixed (the minority has a quarter of the discriminating rows at least)
     rows = [_row(True, False, "retained") for _ in range(3)] + [_row(False, True)]
-    D._adjudicate_boxes(rows, {})
+    D._adjudicate_boxes(rows, {"mixed_share": 0.25})  # the default of params/dimensional.yaml
     assert rows[3][0].evidence["box_convention"]["mixed"] and rows[3][0].verdict == "re-contracted"
     # no majority: each row keeps its own match
     rows = [_row(True, False, "retained"), _row(False, True)]
-    D._adjudicate_boxes(rows, {})
+    D._adjudicate_boxes(rows, {"mixed_share": 0.25})  # the default of params/dimensional.yaml
     assert rows[0][0].evidence["box_convention"]["convention"] is None and rows[1][0].verdict == "re-contracted"
 
 

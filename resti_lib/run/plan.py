@@ -109,10 +109,6 @@ def stage_wave(stage: dict, common: dict) -> tuple[int, bool]:
     return wave, False
 
 
-def stage_names(cfg: dict) -> list[str]:
-    return [s["notebook"] for s in cfg.get("stages") or []]
-
-
 def match_only(stages: list[dict], only: list[str]) -> list[str]:
     """Notebook names of the stages named by ``only`` (full name, or the name without its number:
     ``dimensional`` for ``03_dimensional``). Unknown names raise :class:`InputError`."""

@@ -97,22 +97,8 @@ class ScanNetMeta:
                 "height": self._num("colorHeight", int)}
 
     @property
-    def depth_intrinsics(self) -> dict | None:
-        keys = ("fx_depth", "fy_depth", "mx_depth", "my_depth")
-        if not all(k in self.values for k in keys):
-            return None
-        return {"fx": self._num("fx_depth"), "fy": self._num("fy_depth"), "cx": self._num("mx_depth"),
-                "cy": self._num("my_depth"), "width": self._num("depthWidth", int),
-                "height": self._num("depthHeight", int)}
-
-    @property
     def num_color_frames(self) -> int | None:
         return self._num("numColorFrames", int)
-
-    @property
-    def num_depth_frames(self) -> int | None:
-        return self._num("numDepthFrames", int)
-
 
 def read_scene_meta(path: str | Path) -> ScanNetMeta:
     """Parse ``<scene>.txt``.

@@ -152,20 +152,6 @@ def quat_wxyz_from_matrix(R: np.ndarray) -> list[float]:
     return [float(v) for v in q]
 
 
-def matrix_from_quat_wxyz(q) -> np.ndarray:
-    """Rotation matrix from a scalar-first unit quaternion."""
-    w, x, y, z = (float(v) for v in q)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 # --------------------------------------------------------------------------------- small geometry
 
 

@@ -244,10 +244,6 @@ class ScanNetScene:
         """Frame index of timeline time ``t``."""
         return int(round(t * self.fps))
 
-    def cam_center_raw(self, f: int) -> np.ndarray:
-        """Camera centre in the raw frame."""
-        return self.poses[f, :3, 3].copy()
-
     def cam_center_ann(self, f: int) -> np.ndarray:
         """Camera centre in the annotation frame."""
         return self.A[:3, :3] @ self.poses[f, :3, 3] + self.A[:3, 3]

@@ -279,10 +279,6 @@ class WaymoSegment:
         p = o.world[k0 : k1 + 1]
         return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
-    def obj_displacement(self, o: TrackedObject, k0: int, k1: int) -> float:
-        """Object displacement between two frames (m)."""
-        return float(np.linalg.norm(o.world[k1] - o.world[k0]))
-
     def obj_acceleration(self, o: TrackedObject, k0: int, k1: int) -> float:
         """|v(t1) - v(t0)| / (t1 - t0) of the world velocity (the written speed vectors rotated back)."""
         v0, v1 = o.velocity(np.array([self.t[k0], self.t[k1]]))

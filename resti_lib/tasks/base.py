@@ -49,6 +49,9 @@ from ..io.benchmark import jsonl_text, parse_key
 from ..io.files import atomic_write_bytes
 from ..measure import Measured, measure
 
+#: Parameters every task shares, stated once in ``params/default.yaml`` (sources, legacy file, seed, outputs).
+COMMON_KEYS = ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root", "scannet_fps", "omni6d_fps",
+               "video_map", "seed", "output_dir")
 KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label")  # kinds of an AnswerSpec
 VALUE_KINDS = ("scalar", "box", "pose", "trajectory", "label")  # kinds of a parsed value (an angle is a scalar)
 
@@ -224,8 +227,11 @@ class Task:
 
     # -- parameters
     def settings(self, params: dict | None) -> dict:
-        """``params/<params_name>.yaml`` overridden by ``params`` (defaults written once)."""
-        return D.merged(self.params_name, params) if self.params_name else dict(params or {})
+        """The shared keys' defaults (``params/default.yaml``), then ``params/<params_name>.yaml``,
+        overridden by ``params``: defaults written once, in the YAML files."""
+        common = {k: v for k, v in D.load("default").items() if k in COMMON_KEYS}
+        own = D.merged(self.params_name, params) if self.params_name else dict(params or {})
+        return {**common, **own}
 
     def rule(self, settings: dict, source: str) -> Rule:
         """The comparison rule of the task on ``source`` (params ``rule_key``; no key: exact)."""

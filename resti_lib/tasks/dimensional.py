@@ -102,7 +102,7 @@ BOX_CONVENTIONS = {
 }
 
 
-def box_convention(pending: list[tuple], mixed_share: float = 0.25) -> dict:
+def box_convention(pending: list[tuple], mixed_share: float) -> dict:
     """The box convention of the legacy ScanNet values: the majority of the rows that match exactly one.
 
     ``pending``: ``(diagnosis, matches)`` with ``matches = {"tight": bool, "axis_aligned": bool}``.
@@ -131,7 +131,7 @@ def _adjudicate_boxes(pending: list[tuple], params: dict) -> None:
 
     ``pending``: ``(diagnosis, matches)``; a diagnosis has ``verdict``, ``defects`` and ``evidence``
     (with ``box_hypotheses``)."""
-    g = box_convention(pending, float(params.get("mixed_share", 0.25)))
+    g = box_convention(pending, float(params["mixed_share"]))
     for o, m in pending:
         o.evidence["box_convention"] = dict(g)
         if m["tight"] or not m["axis_aligned"]:

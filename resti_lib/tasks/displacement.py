@@ -173,7 +173,7 @@ class Displacement(MotionTask):
                          for op in READINGS} for k in open_rows}
         groups = reading_per_source([(k.source, match[id(k)]) for k in open_rows], READINGS,
                                     str(cases[0].params["default_statistic"]) if cases else "path_length",
-                                    float(cases[0].params["mixed_share"]) if cases else 0.25)
+                                    float(cases[0].params["mixed_share"]) if cases else 0.0)
         for k in cases:
             extra: dict = {}
             if id(k) in match:

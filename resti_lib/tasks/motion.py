@@ -42,7 +42,7 @@ from ..geometry.trajectory import PoseTrack
 from ..sources.context import derived
 from ..sources.referents import GENERIC_NOUNS, WAYMO_NOUNS, SceneView, box_from, box_visibility, in_camera, size_fits
 from .base import Exclude, Task
-from .scalar_audit import tie_break_by_legacy
+from .scalar_audit import tie_break_by_legacy, tie_break_enabled
 
 __all__ = ["Subject", "ambiguous_subject", "camera_subject", "read_motion_contract", "source_frames",
            "waymo_object_subject"]
@@ -231,8 +231,7 @@ def waymo_object_subject(view: SceneView, desc: str | None, t0: float, t1: float
     cands = wanted or cands
     ev["n_after_motion_cue"] = len(cands)
     if len(cands) > 1:
-        tb = params.get("legacy_tie_break", True)
-        enabled = bool(tb.get("Waymo", True) if isinstance(tb, dict) else tb)
+        enabled = tie_break_enabled(params, "Waymo")
         k, tev = tie_break_by_legacy([c["id"] for c in cands], [c["value_si"] for c in cands], legacy, unit, rule,
                                      enabled=enabled)
         ev["referent"] = tev
@@ -293,7 +292,7 @@ def ambiguous_subject(view: SceneView, desc: str | None, t0: float, t1: float,
 
 
 def reading_per_source(rows: list[tuple[str, dict]], names: dict[str, str], default: str,
-                       mixed_share: float = 0.25) -> dict[str, dict]:
+                       mixed_share: float) -> dict[str, dict]:
     """Per source: the reading of the legacy rows whose question leaves the statistic open.
 
     ``rows``: ``(source, {reading: legacy agrees})`` per such row, two readings (``names`` gives

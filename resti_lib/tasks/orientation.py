@@ -274,10 +274,10 @@ class Orientation(Task):
                 d.defects.append("orientation_xz_plane")
         else:
             diag["legacy_detail_error"] = case.legacy_problem or f"Answer Detail is not an angle: {case.detail!r}"
-        if p.get("invariance_check", True):
+        if p["invariance_check"]:
             s = case.state
             diag["invariance_error_deg"] = invariance_error(s["tracks"], s["t0"], s["t1"], p,
-                                                            row_rng(int(p.get("seed", 0) or 0), case.outcome.key,
+                                                            row_rng(int(p["seed"]), case.outcome.key,
                                                                     "invariance"))
         case.diagnosis = d
 

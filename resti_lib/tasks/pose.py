@@ -349,6 +349,7 @@ def diagnosis_table(outcomes: list[Outcome], source: str | None = "Waymo") -> pd
         recs.append({"row": o.row, "source": o.source, "video": o.video, "verdict": o.verdict,
                      "asked_t": s["asked_t"], "best_t": s["best_t"], "time_offset_s": s["time_offset_s"],
                      "asked_residual": s["asked_residual"], "best_residual": s["best_residual"],
+                     "reproduced_at_asked": s["reproduced_at_asked"],
                      "wrong_timestamp": "waymo_pose_wrong_timestamp" in o.defects,
                      "translation_change_m": s["translation_change_m"],
                      "rotation_change_deg": s["rotation_change_deg"]})

@@ -36,9 +36,6 @@ from ..sources.context import SourceContext
 from . import interface, names, task_for
 from .base import Case, Exclude, Outcome, Task, TaskResult, finalize, option_spec, slug, write_task_outputs
 
-COMMON_KEYS = ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root", "scannet_fps", "omni6d_fps",
-               "video_map", "seed", "output_dir")
-
 
 @dataclass
 class TaskRun:
@@ -254,7 +251,7 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
         outcomes.append(o.exclude("malformed_row", field=p.field, problem=p.message))
     _answer_layer(outcomes, mine)
     iface = Interface(load_option_params(), {t.name: t.interface(params)})
-    result = finalize(outcomes, mine, seed=int(params.get("seed", 0)), iface=iface)
+    result = finalize(outcomes, mine, seed=int(params["seed"]), iface=iface)
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(t.name)
     write_task_outputs(result, out_dir)
     return TaskRun(t.name, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)

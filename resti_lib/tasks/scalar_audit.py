@@ -70,8 +70,8 @@ def tie_break_by_legacy(ids: list[str], values_si: list[float], legacy: V.Value 
 
 
 def tie_break_enabled(params: dict, source: str) -> bool:
-    """Params ``legacy_tie_break``: one flag or a per-source mapping."""
-    tb = params.get("legacy_tie_break", False)
+    """Params ``legacy_tie_break`` (the task's params file): one flag or a per-source mapping."""
+    tb = params["legacy_tie_break"]
     return bool(tb.get(source, False) if isinstance(tb, dict) else tb)
 
 

@@ -152,7 +152,7 @@ class Speed(MotionTask):
         open_rows = [k for k in rates if "statistic" in k.contract.missing]
         groups = reading_per_source([(k.source, match[id(k)]) for k in open_rows], READINGS,
                                     str(cases[0].params["default_statistic"]) if cases else "average_velocity",
-                                    float(cases[0].params["mixed_share"]) if cases else 0.25)
+                                    float(cases[0].params["mixed_share"]) if cases else 0.0)
         for k in cases:
             if k.contract.operator != "acceleration":
                 self._rate(k, match[id(k)], groups)
