@@ -148,7 +148,7 @@ def test_one_exception_hierarchy():
 
     import resti_lib
 
-    control_flow = {"Excluded", "Exclude", "NoCandidate", "_Reject"}  # a row excluded; a drawn option set redrawn
+    control_flow = {"Excluded", "Exclude", "NoCandidate", "Reject"}  # a row excluded; a drawn option set redrawn
     for mod in pkgutil.walk_packages(resti_lib.__path__, "resti_lib."):
         m = importlib.import_module(mod.name)
         for obj in vars(m).values():

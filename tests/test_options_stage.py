@@ -17,8 +17,9 @@ from scipy.stats import binomtest, norm
 
 from resti_lib import LETTERS
 from resti_lib import values as V
+from resti_lib.geometry.fields import rotation_preimage
 from resti_lib.options.checks import ROW_CHECKS, parse_row
-from resti_lib.options.stage import build_options, rotation_preimage
+from resti_lib.options.stage import build_options
 from resti_lib.options.structural import evaluation_subset, structural_leaks
 from resti_lib.tasks import interface as _interface
 

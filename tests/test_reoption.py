@@ -21,8 +21,8 @@ from resti_lib import values as V
 from resti_lib.io.benchmark import load_release
 from resti_lib.options.attacks import attack_table, binom_p, parse_rows
 from resti_lib.options.learned import LearnedConfig, attack_table_with_learned, learned_picks
+from resti_lib.options.plan import constrained_schedule
 from resti_lib.options.population import Marginal
-from resti_lib.options.stage import constrained_schedule
 from resti_lib.release import reoption as RO
 from resti_lib.release.verify import verify_path
 from resti_lib.run.cli import main as cli_main

@@ -28,7 +28,9 @@ other four follow.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import ndtr, ndtri
@@ -226,3 +228,152 @@ class Copula:
 
 
 __all__ = ["Marginal", "Map1D", "Copula", "circular_cut", "on_cut_line", "from_cut_line"]
+
+
+@dataclass
+class FieldModel:
+    """Marginals of ``d`` fields and ``k`` covariates of one group's rows, and their copula."""
+
+    fields: list
+    covariates: list
+    copula: Copula
+    cov_scores: np.ndarray  # (n, k) covariate scores of every member row
+    index: dict  # rid -> member position
+
+    @classmethod
+    def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
+            min_rows: int = 8, prior_sd=0.5, prior_center=None) -> "FieldModel":
+        """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
+        ``H`` and covariates ``W`` (n, k).
+
+        A group with fewer than ``min_rows`` answers cannot define a distribution alone: each field's
+        marginal then also holds pseudo-answers at the normal quantiles of a weak prior (the rows'
+        mean, or ``prior_center`` without rows, and the larger of their spread and ``prior_sd``),
+        as many as the rows are short of ``min_rows``."""
+        n = len(rids)
+        B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
+        H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
+        d = B.shape[1]
+        m = max(0, min_rows - n)
+        fields = []
+        for j in range(d):
+            bj, hj = B[:, j], H[:, j]
+            if m:
+                centre = float(bj.mean()) if n else float(np.atleast_1d(prior_center)[j])
+                sd = max(float(bj.std()) if n > 1 else 0.0, float(np.atleast_1d(prior_sd)[j % np.size(prior_sd)]))
+                pseudo = centre + sd * norm_quantiles(m)
+                bj = np.concatenate([bj, pseudo])
+                hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
+            fields.append(Marginal.fit(bj, hj, k=knn))
+        covs, cs = [], np.zeros((n, 0))
+        if W is not None and W.size and n >= min_rows:
+            W = np.asarray(W, float).reshape(n, -1)
+            keep = [j for j in range(W.shape[1]) if np.nanstd(W[:, j]) > 1e-9]
+            for j in keep:
+                covs.append(Marginal.fit(W[:, j], 1e-6, k=knn))
+            if covs:
+                cs = np.column_stack([c.row_map(None).score(W[:, j]) for c, j in zip(covs, keep)])
+        if n:
+            us = np.column_stack([f.row_map(None).score(B[:, j]) for j, f in enumerate(fields)])
+            cop = Copula.fit(np.column_stack([us, cs]), d, shrink=shrink)
+        else:
+            cop = Copula(np.eye(d), d)
+        return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)})
+
+    def prepare(self, rid: str | None, bounds: list | None = None) -> "RowDraw":
+        """The maps (without the row's own answer, within the row's ``bounds`` [(lower, upper) per
+        field, base space]) and conditional model of one row, computed once; a row outside the model
+        (``None`` or not a member) draws from the whole group."""
+        i = self.index.get(rid) if rid is not None else None
+        u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
+        if i is None and self.cov_scores.shape[1]:
+            u_w = np.zeros(self.cov_scores.shape[1])
+        mu, L = self.copula.conditional(u_w)
+        bounds = bounds or [(None, None)] * len(self.fields)
+        return RowDraw([f.row_map(i, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
+
+
+def norm_quantiles(m: int) -> np.ndarray:
+    """``m`` evenly spaced standard normal quantiles (deterministic pseudo-answers)."""
+    from scipy.stats import norm
+
+    return norm.ppf((np.arange(m) + 0.5) / m)
+
+
+@dataclass
+class RowDraw:
+    """Draws of one row's distractors in base space (see :class:`FieldModel`).
+
+    ``gamma`` scales the exchangeable model in standardised score space: the stage calibrates it per
+    group so that the distractors that survive the separation and plausibility constraints are
+    distributed like the answers (the constraints push candidates apart, which would otherwise make
+    the distractors less typical than the answer).
+    """
+
+    maps: list
+    mu: np.ndarray
+    L: np.ndarray
+    last_z: np.ndarray | None = None
+    last_za: np.ndarray | None = None
+    drawn: list = field(default_factory=list)  # every standardised draw of the row, kept or not
+
+    def draw(self, cells: list, s: float, rng: np.random.Generator, *, n: int = 4, prior: bool = False,
+             batch: int | None = None) -> np.ndarray:
+        """Base values (n, d) — or (batch, n, d) — given the answer's base rounding ``cells``
+        [(lo, hi), ...]; ``prior``: no designated answer (fixed-slot rows)."""
+        d = len(self.maps)
+        K = batch or 1
+        if prior:
+            c = math.sqrt(max(1.0 - s * s, 1e-6)) * rng.standard_normal((K, 1, d))
+            z = c + s * rng.standard_normal((K, n, d))
+            self.last_za = None
+        else:
+            u_a = np.column_stack([m.cell_score(lo, hi, rng, K) for m, (lo, hi) in zip(self.maps, cells)])
+            z_a = np.linalg.solve(self.L, (u_a - self.mu[None, :]).T).T  # (K, d)
+            c = (1.0 - s * s) * z_a + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
+            z = c[:, None, :] + s * rng.standard_normal((K, n, d))
+            self.last_za = z_a
+        self.last_z = z
+        self.drawn.append(z.reshape(-1, d))
+        u = self.mu[None, None, :] + z @ self.L.T
+        out = np.stack([self.maps[j].values(u[:, :, j].ravel()).reshape(K, n) for j in range(d)], axis=-1)
+        return out if batch else out[0]
+
+    def keep(self, i: int) -> None:
+        """Record batch member ``i`` as the accepted draw (for calibration)."""
+        if self.last_z is not None and self.last_z.ndim == 3:
+            self.last_z = self.last_z[i]
+            self.last_za = None if self.last_za is None else self.last_za[i]
+
+
+def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.ndarray:
+    """Leave-one-out means of ``b0`` per nested key, each level shrunk towards its parent.
+
+    ``keys[i]`` is a tuple of levels for row i, e.g. ``(quantity, subject_class)``: the offset of a
+    row is the mean of the other rows of its (quantity, class), shrunk by ``kappa`` pseudo-rows
+    towards the mean of its quantity, itself shrunk towards the group mean. A row never enters
+    its own offset, so an attacker who knows the typical value of a class learns nothing the
+    distractors do not share.
+    """
+    b0 = np.asarray(b0, float)
+    one = b0.ndim == 1
+    b0 = b0[:, None] if one else b0
+    n = len(keys)
+    tot = b0.sum(axis=0)
+    out = np.zeros_like(b0)
+    depth = max((len(k) for k in keys), default=0)
+    sums: list[dict] = []
+    for lv in range(1, depth + 1):
+        acc: dict = defaultdict(lambda: [np.zeros(b0.shape[1]), 0])
+        for i, k in enumerate(keys):
+            a = acc[k[:lv]]
+            a[0] = a[0] + b0[i]
+            a[1] += 1
+        sums.append(acc)
+    for i, k in enumerate(keys):
+        m = (tot - b0[i]) / max(n - 1, 1)
+        for lv in range(1, len(k) + 1):
+            s_, c_ = sums[lv - 1][k[:lv]]
+            m = ((s_ - b0[i]) + kappa * m) / (c_ - 1 + kappa)
+        out[i] = m
+    return out[:, 0] if one else out

@@ -41,8 +41,8 @@ import pandas as pd
 from .. import values as V
 from ..errors import InputError
 from ..rng import stable_seed
+from .plan import share_key
 from .spec import Interface, angle_gap, scalar_gap, spec_of
-from .stage import share_key
 
 CHANCE = 0.2
 COLUMNS = ["task", "source", "leak", "n_rows", "rows_affected", "accuracy_on_affected", "detail", "remedy"]

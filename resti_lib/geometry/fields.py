@@ -1,0 +1,165 @@
+"""Fields a box or a pose is drawn in: rotations about an axis, headings about the up axis, an
+exact rotation that prints as a given matrix, the gaze point of cameras that look at one place,
+and the coordinates of a centre (cartesian, projective: image-plane direction and depth, or height
+below the camera). The option stage (:mod:`resti_lib.options.kinds`) draws candidates in them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .frames import nearest_rotation
+
+
+def rot(axis, deg: float) -> np.ndarray:
+    a = np.asarray(axis, float)
+    return Rotation.from_rotvec(a / np.linalg.norm(a) * np.radians(deg)).as_matrix()
+
+
+def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accept=None, tries: int = 3000
+                      ) -> np.ndarray:
+    """An exact rotation whose entries print as ``printed`` at ``decimals`` (and that ``accept``
+    takes, e.g. its printed heading): every field a perturbation leaves alone then prints exactly
+    as in the answer."""
+    P = np.asarray(printed, float)
+    R = nearest_rotation(P)
+
+    def ok(Q):
+        return np.array_equal(np.round(Q, decimals), np.round(P, decimals)) and (accept is None or accept(Q))
+
+    if ok(R):
+        return R
+    sigma = 0.6 * 10.0 ** -decimals
+    for _ in range(tries):
+        Q = Rotation.from_rotvec(rng.normal(0.0, sigma, 3)).as_matrix() @ R
+        if ok(Q):
+            return Q
+    return R
+
+
+def heading_deg(R, up, col: int) -> float:
+    """Heading of column ``col`` of a rotation about the world ``up`` axis (degrees)."""
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    e1 = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.array([0.0, 1.0, 0.0]) - up[1] * up
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    v = np.asarray(R, float)[:, col]
+    return float(np.degrees(np.arctan2(v @ e2, v @ e1)))
+
+
+def horizontal_frame(R, up, col: int = 2) -> np.ndarray:
+    """Columns: horizontal forward (column ``col`` projected), left, up — a premise's heading frame."""
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    f = np.asarray(R, float)[:, col] - (np.asarray(R, float)[:, col] @ up) * up
+    if np.linalg.norm(f) < 1e-6:
+        f = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    f /= np.linalg.norm(f)
+    return np.column_stack([f, np.cross(up, f), up])
+
+
+def box_yaw(R, up_axis: int) -> float:
+    """Heading of a box about its local ``up_axis`` (``box_yaw(R @ rot(e_up, d)) == box_yaw(R) + d``)."""
+    R = np.asarray(R, float)
+    up = R[:, up_axis]
+    f = np.array([0.0, 0.0, 1.0]) - up[2] * up
+    if np.linalg.norm(f) < 1e-6:
+        f = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    f /= np.linalg.norm(f)
+    g = np.cross(up, f)
+    a = R[:, (up_axis + 1) % 3]
+    return float(np.degrees(np.arctan2(a @ g, a @ f)))
+
+
+DOWN = np.array([0.0, 1.0, 0.0])  # +Y down in the reference camera's OpenCV axes
+
+
+def gaze_depth(R, t) -> float:
+    """Depth along the reference optical axis (+Z) of its closest approach to this camera's optical
+    axis; NaN when the two are parallel or the point is not in front."""
+    a = np.array([0.0, 0.0, 1.0])
+    b = np.asarray(R, float)[:, 2]
+    t = np.asarray(t, float)
+    c = a @ b
+    den = 1.0 - c * c
+    if den < 1e-4:
+        return float("nan")
+    s = (t @ a - c * (t @ b)) / den
+    return float(s) if 0.05 < s < 50.0 else float("nan")
+
+
+def gaze_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e1 = np.cross(DOWN, u)
+    if np.linalg.norm(e1) < 1e-9:
+        e1 = np.cross(np.array([1.0, 0.0, 0.0]), u)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def gaze_fields(R, t, G) -> np.ndarray:
+    """A camera relative to a gaze point ``G`` (reference frame): its centre (3), the two angles of its
+    optical axis away from the line towards ``G`` and its roll about the optical axis (degrees).
+    Cameras around a desk look at it: every candidate drawn this way does too."""
+    R, C = np.asarray(R, float), np.asarray(t, float)
+    a = R[:, 2]
+    u = np.asarray(G, float) - C
+    u /= np.linalg.norm(u)
+    e1, e2 = gaze_basis(u)
+    au = max(float(a @ u), 1e-6)
+    alpha, beta = np.degrees(np.arctan2(a @ e1, au)), np.degrees(np.arctan2(a @ e2, au))
+    xr = np.cross(DOWN, a)
+    xr /= np.linalg.norm(xr)
+    yr = np.cross(a, xr)
+    roll = np.degrees(np.arctan2(R[:, 0] @ yr, R[:, 0] @ xr))
+    return np.array([*C, alpha, beta, roll])
+
+
+def from_gaze_fields(f, G) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`gaze_fields`: (R, t)."""
+    f = np.asarray(f, float)
+    C = f[:3]
+    u = np.asarray(G, float) - C
+    u /= np.linalg.norm(u)
+    e1, e2 = gaze_basis(u)
+    a = u + np.tan(np.radians(f[3])) * e1 + np.tan(np.radians(f[4])) * e2
+    a /= np.linalg.norm(a)
+    xr = np.cross(DOWN, a)
+    xr /= np.linalg.norm(xr)
+    yr = np.cross(a, xr)
+    x = np.cos(np.radians(f[5])) * xr + np.sin(np.radians(f[5])) * yr
+    return np.column_stack([x, np.cross(a, x), a]), C
+
+
+def centre_fields(c, mode: str) -> np.ndarray:
+    """A box centre as drawn: projective (x/z, y/z, log z), height (x/z, y, log z) or cartesian."""
+    c = np.asarray(c, float)
+    if mode == "projective":
+        return np.array([c[0] / c[2], c[1] / c[2], math.log(c[2])])
+    if mode == "height":
+        return np.array([c[0] / c[2], c[1], math.log(c[2])])
+    return c.copy()
+
+
+def centre_from_fields(f, mode: str) -> np.ndarray:
+    f = np.asarray(f, float)
+    if mode == "projective":
+        z = math.exp(f[2])
+        return np.array([f[0] * z, f[1] * z, z])
+    if mode == "height":
+        z = math.exp(f[2])
+        return np.array([f[0] * z, f[1], z])
+    return f.copy()
+
+
+def centre_half_cells(c, mode: str, ulp: float) -> np.ndarray:
+    """Half width of the printed rounding cell of each centre field (first-order)."""
+    z = abs(float(c[2])) or 1.0
+    h = 0.5 * ulp
+    if mode == "projective":
+        return np.array([h / z, h / z, h / z])
+    if mode == "height":
+        return np.array([h / z, h, h / z])
+    return np.array([h, h, h])

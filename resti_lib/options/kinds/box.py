@@ -1,0 +1,157 @@
+"""Boxes: centre (image-plane direction and depth, or height), log edges relative to the class and heading drawn jointly."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ... import values as V
+from ...errors import InputError
+from ...geometry.fields import box_yaw, centre_fields, centre_from_fields, centre_half_cells, rot, rotation_preimage
+from ...rng import row_rng
+from ..plan import GroupModel, Reject, RowPlan, recorded_decimals
+from ..population import FieldModel, circular_cut, from_cut_line, hierarchical_offsets, on_cut_line
+from ..spec import (
+    box_floors,
+    box_separation,
+    per_source,
+)
+from . import KindBuilder, register_kind
+
+
+@register_kind("box")
+class BoxKind(KindBuilder):
+    """Boxes: centre (image-plane direction and depth, or height), log edges relative to the class
+    and heading drawn jointly."""
+
+    def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
+        kp = st.params["kinds"]["box"]
+        src = ps[0].spec.source
+        mode = per_source(kp["centre"], src, "projective")
+        up_axis = per_source(kp["up_axis"], src, None)
+        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "up_axis": up_axis}
+        cs = np.array([p.spec.value.center for p in ps], float)
+        ds = np.array([p.spec.value.lwh for p in ps], float)
+        info["decimals"] = {**{f"c{j}": recorded_decimals(cs[:, j], 3) for j in range(3)},
+                            **{f"d{j}": recorded_decimals(ds[:, j], 3) for j in range(3)}}
+        rows_f, rows_h = [], []
+        lds = []
+        for p in ps:
+            v: V.Box = p.spec.value
+            if v.R is None:
+                raise InputError("a grounding answer without a rotation has no option builder", row=p.rid,
+                                 field="Answer Detail")
+            c = np.array(v.center, float)
+            m = mode if c[2] > 0 else "cartesian"
+            info["mode"][p.rid] = m
+            rng = row_rng(st.seed, p.rid, "preimage")
+            R0 = rotation_preimage(v.R, 6, rng, accept=lambda Q, h=v.heading: h is None or
+                                   round(V.box_heading(Q), 2) == round(h, 2))
+            info["R0"][p.rid] = R0
+            lds.append(np.log(np.maximum(np.array(v.lwh, float), 1e-4)))
+        lds = np.array(lds)
+        coff = hierarchical_offsets([(p.spec.obs.subject_class,) for p in ps], lds, st.model["class_shrink"])
+        cut = None
+        if up_axis is not None:
+            yaws = np.array([box_yaw(info["R0"][p.rid], up_axis) for p in ps])
+            cut = circular_cut(yaws)
+            info["cut"] = cut
+        # centre fields use one mode per group (rows behind the camera: cartesian in their own model)
+        for i, p in enumerate(ps):
+            v = p.spec.value
+            c = np.array(v.center, float)
+            m = info["mode"][p.rid]
+            f = centre_fields(c, mode) if m == mode else np.full(3, np.nan)
+            hc = centre_half_cells(c, mode, 10.0 ** -3)
+            dd = np.maximum(np.array(v.lwh, float), 1e-4)
+            hd = 0.5e-3 / dd
+            info["class_off"][p.rid] = coff[i]
+            row_f = [*f, *(lds[i] - coff[i])]
+            row_h = [*hc, *hd]
+            if up_axis is not None:
+                y = box_yaw(info["R0"][p.rid], up_axis)
+                info["yaw0"][p.rid] = y
+                row_f.append(float(on_cut_line(y, cut)))
+                row_h.append(0.005)
+            rows_f.append(row_f)
+            rows_h.append(row_h)
+        F, Hh = np.array(rows_f, float), np.array(rows_h, float)
+        ok = np.isfinite(F).all(axis=1)
+        members = [p.rid for p, k in zip(ps, ok) if k]
+        if not members:
+            raise InputError(f"{g}: no box in front of the camera", field="Answer Detail")
+        fm = FieldModel.fit(members, F[ok], Hh[ok], None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
+                            min_rows=int(st.model["min_group"]), prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0])
+        info["group_mode"] = mode
+        # rows behind the camera: draw like the nearest member in the field model (rare; recorded)
+        info["proxy"] = {p.rid: members[0] for p, k in zip(ps, ok) if not k}
+        return GroupModel("box", fm, info)
+
+    # -- structured kinds
+    def build(self, st, p, gm, s, rng, strict, reveals):
+        spec = p.spec
+        v: V.Box = spec.value
+        info = gm.info
+        R0 = info["R0"][p.rid]
+        c0, d0 = np.array(v.center, float), np.array(v.lwh, float)
+        rid = p.rid if p.rid in gm.fields.index else info["proxy"][p.rid]
+        mode = info["group_mode"] if rid == p.rid else "cartesian"
+        up_axis = info["up_axis"]
+        coff = info["class_off"][p.rid]
+        if rid == p.rid:
+            f0 = centre_fields(c0, mode)
+            hc = centre_half_cells(c0, mode, 1e-3)
+            cells = [(f0[j] - hc[j], f0[j] + hc[j]) for j in range(3)]
+            ld = np.log(np.maximum(d0, 1e-4)) - coff
+            hd = 0.5e-3 / np.maximum(d0, 1e-4)
+            cells += [(ld[j] - hd[j], ld[j] + hd[j]) for j in range(3)]
+            if up_axis is not None:
+                y = float(on_cut_line(info["yaw0"][p.rid], info["cut"]))
+                cells.append((y - 0.005, y + 0.005))
+            B = st.draw(gm, p.rid, cells, s, rng, n=4)
+            centres = np.array([centre_from_fields(b[:3], mode) for b in B])
+        else:  # a centre behind the camera: exchangeable cartesian shifts
+            B = st.draw(gm, rid, [], s, rng, n=4, prior=True)
+            centres = c0 + rng.normal(0.0, 0.1 * max(1.0, np.linalg.norm(c0)), (4, 3))
+        dims = np.exp(B[:, 3:6] + coff)
+        if up_axis is not None:
+            yaws = from_cut_line(B[:, 6], info["cut"])
+            e = np.zeros(3)
+            e[up_axis] = 1.0
+            rots = [R0 @ rot(e, float(V.wrap_degrees(y - info["yaw0"][p.rid]))) for y in yaws]
+        else:
+            sig = np.radians(st.params["kinds"]["box"]["iso_sigma_deg"])
+            Q = [Rotation.from_rotvec(rng.normal(0.0, sig, 3)).as_matrix() for _ in range(5)]
+            rots = [R0 @ Q[4].T @ Q[i] for i in range(4)]
+        dec = info["decimals"]
+        centres = np.column_stack([np.round(centres[:, j], dec[f"c{j}"]) for j in range(3)])
+        dims = np.column_stack([np.round(dims[:, j], dec[f"d{j}"]) for j in range(3)])
+        strings = [V.format_box(centres[i], dims[i], rots[i]) for i in range(4)]
+        parsed = [V.parse(t) for t in strings]
+        self.check(st, spec, [*parsed, v])
+        return strings + [spec.detail]
+
+    def check(self, st, spec, boxes):
+        fl = box_floors(spec, st.params)
+        pl = st.params["plausibility"]
+        max_size = float(per_source(pl["max_size_m"], spec.source, math.inf))
+        dmin = float(per_source(pl["min_depth_m"], spec.source, 0.0))
+        dmax = float(per_source(pl["max_depth_m"], spec.source, math.inf))
+        strings = [b.text for b in boxes]
+        if len(set(strings)) != 5:
+            raise Reject("two boxes print the same")
+        for b in boxes[:-1]:
+            d = np.array(b.lwh)
+            if (d <= 0).any() or (d > max_size).any():
+                raise Reject("a box size is not physically possible")
+            depth = float(np.linalg.norm(b.center))
+            if b.center[2] > 0 and not dmin <= b.center[2] <= dmax:
+                raise Reject("a box depth is not physically possible")
+            if not np.isfinite(depth):
+                raise Reject("a box centre is not finite")
+        for i in range(5):
+            for j in range(i + 1, 5):
+                if box_separation(boxes[i], boxes[j], fl) < 1.0:
+                    raise Reject("two boxes within the separation floors of each other")

@@ -1,0 +1,148 @@
+"""Poses: a motion from the premise pose (translation in the premise's heading frame and a relative
+rotation), cameras relative to a reference around their gaze point."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ... import values as V
+from ...geometry.fields import from_gaze_fields, gaze_depth, gaze_fields, horizontal_frame, rotation_preimage
+from ...geometry.frames import nearest_rotation
+from ...rng import row_rng
+from ..plan import GroupModel, Reject, RowPlan, log_window, recorded_decimals
+from ..population import FieldModel, circular_cut, from_cut_line, on_cut_line
+from ..spec import (
+    per_source,
+    pose_floors,
+    pose_separation,
+    speed_bound,
+)
+from . import KindBuilder, register_kind
+
+
+@register_kind("pose")
+class PoseKind(KindBuilder):
+    """Poses: a motion from the premise pose (translation in the premise's heading frame and a
+    relative rotation), cameras relative to a reference around their gaze point."""
+
+    def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
+        """Poses as a motion from the premise: the translation in the premise's horizontal heading
+        frame (forward, left, up; a rate over the window for vehicles) and the rotation vector of the
+        relative rotation ``R R_p^T``, jointly. A question without a printed premise (the reference
+        camera as the identity) has the identity as premise."""
+        kp = st.params["kinds"]["pose"]
+        src = ps[0].spec.source
+        up = np.asarray(kp["world_up"], float)
+        rate = bool(per_source(kp["rate"], src, False))
+        info: dict = {"rate": rate, "R0": {}, "frame": {}, "win": {}}
+        relative = all(p.spec.obs.premise_text is None for p in ps)
+        info["relative"] = relative
+        ts = np.array([p.spec.value.t for p in ps], float)
+        info["t_decimals"] = [recorded_decimals(ts[:, j], ps[0].spec.decimals) for j in range(3)]
+        F, Hh, W = [], [], []
+        for p in ps:
+            v: V.Pose = p.spec.value
+            o = p.spec.obs
+            R0 = rotation_preimage(v.R, v.decimals, row_rng(st.seed, p.rid, "preimage"))
+            info["R0"][p.rid] = R0
+            win = o.window_s if (o.window_s and o.window_s > 0) else 1.0
+            info["win"][p.rid] = win
+            scale = win if rate else 1.0
+            if o.premise is not None and o.premise_text is not None:
+                Rp, tp = nearest_rotation(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
+                Hf = horizontal_frame(Rp, up, 2)
+            else:  # relative poses: the reference camera is the identity
+                Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)
+            info["frame"][p.rid] = (Rp, tp, Hf)
+            h_t = 0.5 * 10.0 ** -v.decimals
+            if not relative:
+                d = Hf.T @ (np.array(v.t, float) - tp) / scale
+                r = Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
+                F.append([*d, *r])
+                Hh.append([h_t / scale] * 3 + [h_t] * 3)
+            W.append([log_window(p.spec)])
+        if relative:  # cameras looking at a desk: drawn around the gaze point they share
+            depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
+            G = np.array([0.0, 0.0, float(np.nanmedian(depths)) if np.isfinite(depths).any() else 0.5])
+            info["gaze"] = G
+            yaws = []
+            for p in ps:
+                f = gaze_fields(info["R0"][p.rid], p.spec.value.t, G)
+                F.append(list(f))
+                Hh.append([0.5 * 10.0 ** -p.spec.value.decimals] * 3 + [0.3, 0.3, 0.3])
+                yaws.append(f[5])
+            cut = circular_cut(yaws)
+            info["cut"] = cut
+            for row in F:
+                row[5] = float(on_cut_line(row[5], cut))
+        F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
+        fm = FieldModel.fit([p.rid for p in ps], F, Hh, W if np.isfinite(W).all() else None,
+                            knn=st.model["knn"], shrink=st.model["copula_shrink"],
+                            min_rows=int(st.model["min_group"]),
+                            prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
+                                      [0.5, 0.5, 0.2, 0.1, 0.1, 0.3] if not rate else [3.0, 1.0, 0.2, 0.1, 0.1, 0.3]))
+        return GroupModel("pose", fm, info)
+
+    def build(self, st, p, gm, s, rng, strict, reveals):
+        spec = p.spec
+        v: V.Pose = spec.value
+        info = gm.info
+        R0, t0 = info["R0"][p.rid], np.array(v.t, float)
+        win = info["win"][p.rid]
+        scale = win if info["rate"] else 1.0
+        h_t = 0.5 * 10.0 ** -v.decimals
+        strings: list[str] = []
+        fixed_reveals = list(reveals.get(p.rid, [])) if strict else []  # relaxed tiers draw them all
+        n_draw = 4
+        if fixed_reveals:
+            pick = [fixed_reveals[int(i)] for i in rng.permutation(len(fixed_reveals))[:4]]
+            strings += pick
+            n_draw = 4 - len(pick)
+        if n_draw and info["relative"]:
+            G = info["gaze"]
+            f0 = gaze_fields(R0, t0, G)
+            f0[5] = float(on_cut_line(f0[5], info["cut"]))
+            hh = [h_t] * 3 + [0.3, 0.3, 0.3]
+            B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
+            for b in B:
+                b = np.array(b, float)
+                b[5] = float(from_cut_line(b[5], info["cut"]))
+                R, t = from_gaze_fields(b, G)
+                T = np.eye(4)
+                T[:3, :3] = R
+                T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+        elif n_draw:
+            Rp, tp, Hf = info["frame"][p.rid]
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
+            hh = [h_t / scale] * 3 + [h_t] * 3
+            B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
+            for b in B:
+                T = np.eye(4)
+                T[:3, :3] = Rotation.from_rotvec(b[3:6]).as_matrix() @ Rp
+                t = tp + Hf @ (b[:3] * scale)
+                T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+        self.check(st, p, [V.parse(t) for t in strings] + [v])
+        return strings + [spec.detail]
+
+    def check(self, st, p, poses):
+        spec = p.spec
+        fl = pose_floors(spec, st.params)
+        if len({q.text for q in poses}) != 5:
+            raise Reject("two poses print the same")
+        rots = [tuple(np.round(np.array(q.R), 6).ravel()) for q in poses]
+        if len(set(rots)) != 5:
+            raise Reject("two poses print the same rotation")
+        for i in range(5):
+            for j in range(i + 1, 5):
+                if pose_separation(poses[i], poses[j], fl) < 1.0:
+                    raise Reject("two poses within the separation floors of each other")
+        o = spec.obs
+        if o.premise is not None and o.window_s and o.window_s > 0:
+            vmax = speed_bound(st.params, spec.source, o.subject_class)
+            tp = o.premise[:3, 3]
+            for q in poses[:-1]:
+                if np.linalg.norm(np.array(q.t) - tp) / o.window_s > vmax:
+                    raise Reject("a pose implies an impossible speed from the premise")

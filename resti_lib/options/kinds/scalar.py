@@ -1,0 +1,177 @@
+"""Scalars: magnitudes drawn as log rates over the question's window, relative to their subject's
+class; exact zeros as slots; sizes that recur elsewhere reused as often as the answers."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+
+from ... import values as V
+from ..plan import OBJECT_SIZES, WINDOWED, GroupModel, Reject, RowPlan, log_window, mid_time, slot_rows, slot_subgroup
+from ..population import FieldModel, hierarchical_offsets
+from ..spec import (
+    scalar_bounds,
+    scalar_gap,
+)
+from . import KindBuilder, register_kind
+from .oned import check_1d, first_valid_1d
+
+
+@register_kind("scalar")
+class ScalarKind(KindBuilder):
+    """Scalars: magnitudes drawn as log rates over the question's window, relative to their
+    subject's class; exact zeros as slots; sizes that recur elsewhere reused as often as the
+    answers."""
+
+    # -------------------------------------------------------------------- group fits
+    def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
+        vals = np.array([p.spec.value.value for p in ps], float)
+        eps = min(p.spec.ulp for p in ps)
+        moving = [p for p, v in zip(ps, vals) if v > 0]
+        info: dict = {"eps": eps, "offset": {}}
+        if moving:
+            x = np.array([p.spec.value.value for p in moving], float)
+            b0 = np.log(x + eps)
+            ow = np.array([log_window(p.spec) if p.spec.obs.quantity in WINDOWED else 0.0 for p in moving])
+            ow = np.where(np.isfinite(ow), ow, 0.0)
+            keys = [(p.spec.source, p.spec.obs.quantity, p.spec.obs.subject_class) for p in moving]
+            oc = hierarchical_offsets(keys, b0 - ow, st.model["class_shrink"])
+            off = ow + oc
+            for p, o in zip(moving, off):
+                info["offset"][p.rid] = float(o)
+            # smallest bandwidth: half the separation floor (a population concentrated below the floor
+            # is modelled at the floor's resolution, where five separated candidates can be typical)
+            H = np.array([0.5 * max(scalar_gap(p.spec, st.params, p.spec.value.value),
+                                    st.params["separation"]["scalar"]["min_rel_gap"] * p.spec.value.value)
+                          / (p.spec.value.value + eps) for p in moving])
+            W = np.array([[log_window(p.spec), mid_time(p.spec)] for p in moving])
+            W = W[:, np.isfinite(W).all(axis=0)] if len(W) else None
+            fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=st.model["knn"],
+                                shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
+        else:  # only exact zeros: distractors from a weak prior about twenty printed units
+            fm = FieldModel.fit([], None, None, None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
+                                min_rows=int(st.model["min_group"]), prior_sd=1.0,
+                                prior_center=[math.log(20 * eps + eps)])
+        gm_reuse = GroupModel("scalar", None, {})
+        fit_reuse(gm_reuse, ps)
+        info.update(gm_reuse.info)
+        carriers: set = set()
+        for sub in sorted({slot_subgroup(p.spec) for p in ps}, key=str):
+            zs = [p.rid for p in ps if p.spec.value.value <= 0 and slot_subgroup(p.spec) == sub]
+            ms = [p.rid for p in moving if slot_subgroup(p.spec) == sub]
+            carriers |= slot_rows(zs, ms, st.model["zero_slot_ratio"], seed=st.seed, group=f"{g}|{sub}")
+        for p in ps:
+            if p.rid in carriers:  # the zero printed like the row's own answer
+                zero = V.format_scalar(0.0, p.spec.unit, p.spec.decimals)
+                p.fixed = (zero if p.spec.value.value > 0 else p.spec.detail,)
+                p.answer_is_fixed = p.spec.value.value <= 0
+        return GroupModel("scalar", fm, info)
+
+    def build(self, st, p, gm, s, rng, strict, reveals):
+        spec = p.spec
+        v: V.Scalar = spec.value
+        eps = gm.info["eps"]
+        _, hi_b = scalar_bounds(spec, st.params)
+        fixed = list(p.fixed)
+        n_cont = 5 - len(fixed)
+        n_draw = n_cont if p.answer_is_fixed else n_cont - 1
+        K = 32
+        if p.answer_is_fixed:
+            rid = p.rid if p.rid in gm.fields.index else None
+            off = gm.info["offset"][rid] if rid is not None else mean_offset(gm, spec)
+        else:
+            off = gm.info["offset"][p.rid]
+        # what the row can print: above zero (half a printed unit), below the physical bound
+        bounds = [(math.log(0.5 * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
+        if p.answer_is_fixed:
+            b = st.draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
+        else:
+            x = v.value
+            cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
+            b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds)[:, :, 0]
+        dec = spec.decimals
+        xs = reuse(gm, p, np.exp(b + off) - eps, rng)
+        pv = np.round(xs, dec)
+        extra = [float(V.parse(t).value) for t in fixed] + ([] if p.answer_is_fixed else [v.value])
+        allv = np.column_stack([pv, np.tile(extra, (K, 1))]) if extra else pv
+        ok = (pv > 0).all(axis=1) & (pv <= hi_b + 1e-12).all(axis=1)
+        sep = st.params["separation"]["scalar"]
+        per_unit = v.si_per_unit
+        ulp = spec.ulp
+
+        def gap_of(upper):
+            tol = 0.5 * ulp + (spec.rule.abs_tol + spec.rule.rel_tol * upper * per_unit) / per_unit
+            return np.maximum(sep["min_gap_ulps"] * ulp, tol)
+
+        for i in first_valid_1d(allv, ok, gap_of, rel=sep["min_rel_gap"]):
+            strings = [V.format_scalar(float(t), v.unit, dec) for t in xs[i]]
+            alls = strings + fixed + ([] if p.answer_is_fixed else [spec.detail])
+            try:
+                check_1d(spec, [float(V.parse(t).value) for t in alls], alls,
+                               gap=lambda t: scalar_gap(spec, st.params, t), rel=sep["min_rel_gap"])
+            except Reject:
+                continue
+            if st.last_draw is not None:
+                st.last_draw.keep(i)
+            return alls
+        raise Reject("no drawn set met the separation and plausibility constraints")
+
+
+def fit_reuse(gm: GroupModel, ps: list) -> None:
+    """Answers that recur in other recordings (the same object asked in two scenes): the share of
+    rows whose answer is the answer of a row of another source sequence, and those values. A
+    distractor then takes such a value as often (:meth:`_reuse`), or the recurring answer would
+    be the one candidate another row's answer vouches for."""
+    seqs: dict[float, set] = defaultdict(set)
+    if not all(p.spec.obs.quantity in OBJECT_SIZES for p in ps):
+        return  # rates of a camera coincide only through coarse printing, which the draws share
+    for p in ps:
+        if p.spec.value.value > 0:
+            seqs[round(float(p.spec.value.value), 9)].add(p.spec.obs.sequence)
+    moving = [p for p in ps if p.spec.value.value > 0]
+    if not moving:
+        return
+    reused = sum(1 for p in moving if len(seqs[round(float(p.spec.value.value), 9)] - {p.spec.obs.sequence}) > 0)
+    rate = reused / len(moving)
+    if rate < 0.05:
+        return
+    gm.info["reuse_rate"] = rate
+    gm.info["reuse_values"] = np.array(sorted(seqs))
+    gm.info["reuse_seqs"] = seqs
+
+
+def reuse(gm: GroupModel, p: RowPlan, xs: np.ndarray, rng) -> np.ndarray:
+    """Distractors take the answers of other recordings as often as the answers do
+    (:meth:`_fit_reuse`): drawn values that already print as such an answer count; of the rest,
+    enough become the nearest such answer to make up the group's reuse rate."""
+    rate = gm.info.get("reuse_rate")
+    if not rate or xs.size == 0:
+        return xs
+    pool = gm.info["reuse_values"]
+    seqs = gm.info["reuse_seqs"]
+    own = p.spec.obs.sequence
+    if len(pool) < 2:
+        return xs
+    j = np.clip(np.searchsorted(pool, xs), 1, len(pool) - 1)
+    near = np.where(np.abs(pool[j - 1] - xs) <= np.abs(pool[j] - xs), pool[j - 1], pool[j])
+    # a value is usable when another recording has it (one lookup per distinct value)
+    vals, at = np.unique(near, return_inverse=True)
+    other = np.array([len(q) > (own in q) for q in (seqs[round(float(x), 9)] for x in vals)], dtype=bool)
+    usable = other[at].reshape(near.shape)
+    already = usable & (np.abs(np.round(xs, p.spec.decimals) - near) < 1e-9)
+    natural = float(already.mean())
+    if natural >= rate:
+        return xs
+    extra = (rate - natural) / max(1e-9, 1.0 - natural)
+    snap = ~already & usable & (rng.random(xs.shape) < extra)
+    return np.where(snap, near, xs)
+
+
+def mean_offset(gm, spec) -> float:
+    q = spec.obs.quantity
+    if q in WINDOWED:
+        lw = log_window(spec)
+        return lw if math.isfinite(lw) else 0.0
+    return float(np.mean(list(gm.info["offset"].values()))) if gm.info["offset"] else 0.0

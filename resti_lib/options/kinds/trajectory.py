@@ -1,0 +1,131 @@
+"""Trajectory descriptions: total distances drawn as rates over the window, split and turned like
+the answer's structure; 'no significant movement' as a slot."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ... import values as V
+from ...errors import OptionError
+from ...rng import row_rng
+from ..plan import GroupModel, Reject, RowPlan, log_window, slot_rows
+from ..population import FieldModel
+from ..spec import (
+    scalar_bounds,
+)
+from . import KindBuilder, register_kind
+
+
+@register_kind("trajectory")
+class TrajectoryKind(KindBuilder):
+    """Trajectory descriptions: total distances drawn as rates over the window, split and turned
+    like the answer's structure; 'no significant movement' as a slot."""
+
+    def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
+        moving = [p for p in ps if p.spec.value.segments and p.spec.value.total_distance > 0]
+        none = [p.rid for p in ps if not p.spec.value.segments]
+        info: dict = {"offset": {}}
+        fm = None
+        if moving:
+            x = np.array([p.spec.value.total_distance for p in moving])
+            ow = np.array([log_window(p.spec) for p in moving])
+            ow = np.where(np.isfinite(ow), ow, 0.0)
+            for p, o in zip(moving, ow):
+                info["offset"][p.rid] = float(o)
+            H = 0.5 * st.params["separation"]["trajectory"]["min_rel_gap"] * x / (x + 0.1)
+            W = np.array([[log_window(p.spec)] for p in moving])
+            W = W if np.isfinite(W).all() else None
+            fm = FieldModel.fit([p.rid for p in moving], np.log(x + 0.1) - ow, H, W, knn=st.model["knn"],
+                                shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
+        else:  # only "no significant movement": single moves of a few metres per second of window
+            fm = FieldModel.fit([], None, None, None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
+                                min_rows=int(st.model["min_group"]), prior_sd=1.0, prior_center=[math.log(3.0)])
+        carriers = slot_rows(none, [p.rid for p in moving], st.model["zero_slot_ratio"], seed=st.seed, group=g)
+        donors = sorted(p.rid for p in moving)
+        for p in ps:
+            if p.rid in carriers:
+                p.fixed = (V.NO_MOVEMENT,)
+                p.answer_is_fixed = not p.spec.value.segments
+                if p.answer_is_fixed and donors:
+                    p.donor = donors[int(row_rng(st.seed, p.rid, "donor").integers(len(donors)))]
+        return GroupModel("trajectory", fm, info)
+
+    def build(self, st, p, gm, s, rng, strict, reveals):
+        spec = p.spec
+        v: V.Trajectory = spec.value
+        fixed = list(p.fixed)
+        n_cont = 5 - len(fixed)
+        pars = {"split_sigma": 0.25, "turn_sigma_deg": 15.0}
+        lo_b, hi_b = scalar_bounds(spec, st.params)
+        if p.answer_is_fixed:
+            template = st.by_id[p.donor].spec.value if p.donor else V.Trajectory((("move", 1.0),), "")
+            fmt = traj_formatter(template, pars, rng, centred=False)
+            off = log_window(spec)
+            off = off if math.isfinite(off) else 0.0
+            b = st.draw(gm, p.donor if p.donor in gm.fields.index else None, [], s, rng, n=n_cont, prior=True)[:, 0]
+            totals = np.exp(b + off) - 0.1
+            strings = [fmt(float(t)) for t in totals]
+            alls = strings + fixed
+            values = [V.parse(t).total_distance for t in strings]
+        else:
+            if not v.segments or v.total_distance <= 0:
+                raise OptionError(f"trajectory {spec.detail!r} has no movement to vary")
+            fmt = traj_formatter(v, pars, rng, centred=True)
+            off = gm.info["offset"][p.rid]
+            x = v.total_distance
+            cell = (math.log(max(x - 0.05, 0.0) + 0.1) - off, math.log(x + 0.05 + 0.1) - off)
+            b = st.draw(gm, p.rid, [cell], s, rng, n=n_cont - 1)[:, 0]
+            totals = np.exp(b + off) - 0.1
+            strings = [fmt(float(t)) for t in totals]
+            structures = {V.parse(t).structure for t in strings}
+            if structures != {v.structure}:
+                raise Reject("a distractor lost the answer's structure")
+            alls = strings + fixed + [spec.detail]
+            values = [V.parse(t).total_distance for t in strings] + [x]
+        if any(t <= 0 for t in values) or any(t > hi_b for t in values):
+            raise Reject("a distractor distance is not physically possible")
+        if len(set(alls)) != 5:
+            raise Reject("two candidates print the same phrase")
+        rel = st.params["separation"]["trajectory"]["min_rel_gap"]
+        xs = sorted(values)
+        if any((b2 - a) < rel * b2 for a, b2 in zip(xs, xs[1:])):
+            raise Reject("two totals closer than the relative gap")
+        return alls
+
+
+def traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
+    """A function total -> phrase with the template's structure and exchangeable splits and turns.
+
+    ``centred``: the template is the answer, so its own split and turn draws are subtracted (the
+    answer is one of the exchangeable draws); otherwise the template only lends its structure.
+    """
+    segs = list(template.segments)
+    kinds = [k for k, _ in segs]
+    moves = [j for j, k in enumerate(kinds) if k == "move"]
+    turns = [j for j, k in enumerate(kinds) if k == "turn"]
+    mags = np.array([abs(x) for _, x in segs], float)
+    signs = np.array([np.sign(x) if k == "turn" else 1.0 for k, x in segs])
+    logit0 = np.log(mags[moves] / mags[moves].sum())
+    e_r = rng.normal(0, pars["split_sigma"], len(moves)) if centred else np.zeros(len(moves))
+    t_r = rng.normal(0, pars["turn_sigma_deg"], len(turns)) if centred else np.zeros(len(turns))
+
+    def fmt(total: float) -> str:
+        e = rng.normal(0, pars["split_sigma"], len(moves))
+        w = np.exp(logit0 + e - e_r)
+        lengths = float(total) * w / w.sum()
+        tn = rng.normal(0, pars["turn_sigma_deg"], len(turns))
+        out, mi, ti = [], 0, 0
+        for j, k in enumerate(kinds):
+            if k == "move":
+                out.append(("move", float(lengths[mi])))
+                mi += 1
+            else:
+                m = abs(mags[j] + tn[ti] - t_r[ti]) % 360.0
+                m = 360.0 - m if m > 180.0 else m
+                out.append(("turn", float(signs[j] * max(m, 1.0))))
+                ti += 1
+        return V.format_trajectory(out)
+
+    return fmt
