@@ -103,4 +103,6 @@ REASONS: dict[str, str] = {
     "duplicate_row": "an exact copy of an earlier legacy row, which is kept and audited once",
     "time_past_video_end": "an asked time lies after the end of the video",
     "unsupported_question": "the question does not match a known contract for the task",
+    "no_valid_options": "no five candidates meet the answer interface's requirements (separation, physical "
+                        "possibility) for this answer under the run's option params",
 }

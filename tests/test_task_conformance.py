@@ -217,3 +217,43 @@ def _tiny_release(tmp_path):
                                                       "source": "ScanNet", "task": "Spatial Relation",
                                                       "reason_codes": ["unsupported_question"]}],
                                       tmp_path / "in"))
+
+
+# ------------------------------------------------------------------- a rebuild never aborts (issue 19)
+
+def test_reoption_excludes_a_row_it_cannot_option_instead_of_aborting(tmp_path):
+    """Options that no set can meet (candidates five times their value apart) exclude the scalar rows
+    by name (no_valid_options) instead of stopping the rebuild; every input row is still accounted
+    for, and the other rows ship their options."""
+    from resti_lib.io.files import read_jsonl
+    from resti_lib.release.reoption import reoption_release
+
+    src = _tiny_release(tmp_path)
+    n_in = len(read_jsonl(src / "resti.jsonl"))
+    n_exc_in = len(read_jsonl(src / "excluded.jsonl"))
+    res = reoption_release(src, tmp_path / "out", seed=0, options={"separation": {"scalar": {"min_rel_gap": 5.0}}})
+    exc = read_jsonl(tmp_path / "out" / "excluded.jsonl")
+    new = [r for r in exc if r["reason_codes"] == ["no_valid_options"]]
+    scalar_rows = [r for r in read_jsonl(src / "resti.jsonl")
+                   if isinstance(V.parse(r["Answer Detail"]), V.Scalar) and not V.parse(r["Answer Detail"]).is_angle]
+    assert len(new) == len(scalar_rows) > 0
+    assert all(r["verification_evidence"]["option_error"] for r in new)
+    assert len(res.rows) + len(exc) == n_in + n_exc_in  # nothing lost
+    assert res.validation["passed"]
+
+
+def test_offsets_leave_out_the_rows_own_value_and_its_copies():
+    """Class offsets: a row's copies (same class, same value) never enter its own offset."""
+    import numpy as np
+
+    from resti_lib.options.population import hierarchical_offsets
+
+    keys = [("q", "cup"), ("q", "cup"), ("q", "cup"), ("q", "bowl")]
+    b0 = np.array([1.0, 1.0, 3.0, 5.0])
+    off = hierarchical_offsets(keys, b0, kappa=1.0)
+    # distinct entries: (cup,1), (cup,3), (bowl,5). For a cup row of value 1: the other distinct
+    # entries are 3 and 5; quantity level: mean of (3, 5) over 2 = 4, shrunk to the all-mean 4
+    # -> (8 + 1*4) / (2 + 1) = 4; class level: cup entries other than itself: (3), so (3 + 1*4) / (1 + 1) = 3.5
+    assert off[0] == off[1] == 3.5
+    # the cup of value 3: others (1, 5): all-mean 3; quantity (6 + 3) / 3 = 3; class (1 + 3) / 2 = 2
+    assert off[2] == 2.0

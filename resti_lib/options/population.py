@@ -352,28 +352,39 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.
     ``keys[i]`` is a tuple of levels for row i, e.g. ``(quantity, subject_class)``: the offset of a
     row is the mean of the other rows of its (quantity, class), shrunk by ``kappa`` pseudo-rows
     towards the mean of its quantity, itself shrunk towards the group mean. A row never enters
-    its own offset, so an attacker who knows the typical value of a class learns nothing the
-    distractors do not share.
+    its own offset, and neither do the rows of its key with the same value (the same object asked
+    again, in another recording or a copy of the release): each distinct (key, value) counts once,
+    so an attacker who knows the typical value of a class learns nothing the distractors do not
+    share, and repeated answers do not pull their class's offset onto themselves.
     """
     b0 = np.asarray(b0, float)
     one = b0.ndim == 1
     b0 = b0[:, None] if one else b0
-    n = len(keys)
-    tot = b0.sum(axis=0)
-    out = np.zeros_like(b0)
-    depth = max((len(k) for k in keys), default=0)
+    # one entry per distinct (key, value)
+    ids: dict = {}
+    row_of = np.empty(len(keys), int)
+    for i, k in enumerate(keys):
+        row_of[i] = ids.setdefault((tuple(k), tuple(np.round(b0[i], 9))), len(ids))
+    ukeys = [k for k, _ in ids]
+    first = {u: i for i, u in reversed(list(enumerate(row_of)))}
+    ub = np.array([b0[first[u]] for u in range(len(ids))]) if ids else b0[:0]
+    n = len(ukeys)
+    tot = ub.sum(axis=0)
+    out_u = np.zeros_like(ub)
+    depth = max((len(k) for k in ukeys), default=0)
     sums: list[dict] = []
     for lv in range(1, depth + 1):
-        acc: dict = defaultdict(lambda: [np.zeros(b0.shape[1]), 0])
-        for i, k in enumerate(keys):
+        acc: dict = defaultdict(lambda: [np.zeros(ub.shape[1]), 0])
+        for i, k in enumerate(ukeys):
             a = acc[k[:lv]]
-            a[0] = a[0] + b0[i]
+            a[0] = a[0] + ub[i]
             a[1] += 1
         sums.append(acc)
-    for i, k in enumerate(keys):
-        m = (tot - b0[i]) / max(n - 1, 1)
+    for i, k in enumerate(ukeys):
+        m = (tot - ub[i]) / max(n - 1, 1)
         for lv in range(1, len(k) + 1):
             s_, c_ = sums[lv - 1][k[:lv]]
-            m = ((s_ - b0[i]) + kappa * m) / (c_ - 1 + kappa)
-        out[i] = m
+            m = ((s_ - ub[i]) + kappa * m) / (c_ - 1 + kappa)
+        out_u[i] = m
+    out = out_u[row_of] if len(keys) else np.zeros_like(b0)
     return out[:, 0] if one else out

@@ -79,6 +79,7 @@ class Stage:
         self.groups: dict[str, GroupModel] = {}
         self.cur_draw = None
         self.last_draw = None
+        self.free_draw = False  # the last widening tier (see _build_row)
         self.s_factors: dict = {}
         self._plan()
 
@@ -245,8 +246,13 @@ class Stage:
         rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else "options")
         last = "no candidates drawn"
         # widening steps: a wider spread, then (relaxed) same-video premises no longer imposed
-        tiers = ((s0, True), (min(0.8, 1.5 * s0), True), (min(0.8, 1.5 * s0), False), (0.9, False))
-        for tier, (s, strict) in enumerate(tiers):
+        # a last tier draws a scalar's distractors from its group's population without conditioning
+        # on the answer's cell (exchangeable still; for answers repeated so often across recordings
+        # that every conditioned draw lands on them)
+        tiers = ((s0, True, False), (min(0.8, 1.5 * s0), True, False), (min(0.8, 1.5 * s0), False, False),
+                 (0.9, False, False), (0.9, False, True))
+        for tier, (s, strict, free) in enumerate(tiers):
+            self.free_draw = free
             for attempt in range(tries):
                 try:
                     strings = kb.build(self, p, gm, s, rng, strict, reveals)
@@ -254,6 +260,7 @@ class Stage:
                     last = str(e)
                     continue
                 p.evidence.update({"s": s, "tries": tier * tries + attempt + 1, "strict": strict,
+                                   **({"population_draw": True} if free else {}),
                                    "widened": tier > 0})
                 return strings
         raise OptionError(f"{p.rid} ({p.spec.task}, {p.spec.source}): no options under the constraints ({last})")

@@ -24,14 +24,14 @@ import json
 import os
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .. import SOURCES, __version__, paths
-from ..errors import InputError, OptionError, ReoptionError
+from ..errors import InputError, ReoptionError
 from ..io.benchmark import jsonl_text, load_release, rows_to_parquet_bytes
 from ..io.figures import save_figure
 from ..io.files import read_bytes, read_jsonl, sha256_bytes
@@ -45,17 +45,29 @@ ARTIFACTS = ("resti.jsonl", "resti.parquet", "excluded.jsonl", "evaluation_subse
 
 
 def reoption_records(records: list[dict], *, iface, seed: int = 0, extras: dict | None = None,
-                     progress: bool = False) -> tuple[list[dict], pd.DataFrame]:
+                     progress: bool = False) -> tuple[list[dict], pd.DataFrame, list[dict]]:
     """New candidates and letters for every row through the option stage
     (:func:`resti_lib.options.stage.build_options`) under the answer interface ``iface``; returns
-    (rows, evidence). A row whose options cannot be built stops the rebuild (a release's rows
-    cannot be dropped here).
+    (rows, evidence, exclusions). The rebuild never aborts on a row: a row whose options cannot meet
+    the constraints leaves the accepted rows as an exclusion record with reason
+    ``no_valid_options`` and the stage's message in its evidence (the other rows are unchanged).
     """
-    try:
-        rows, ev, _ = build_options(records, iface=iface, seed=seed, extras=extras, progress=progress)
-    except OptionError as e:
-        raise ReoptionError(str(e)) from None
-    return rows, ev
+    built, ev, failed = build_options(records, iface=iface, seed=seed, extras=extras, progress=progress,
+                                      on_failure="skip")
+    rows, excluded = [], []
+    for r in built:
+        rid = str(r.get("ReSTI ID") or r.get("Legacy Row Key"))
+        if rid not in failed:
+            rows.append(r)
+            continue
+        key = r.get("Legacy Row Key")
+        parts = str(key).split("|")
+        excluded.append({"key": key, "legacy_id": r.get("ID"),
+                         "legacy_video": parts[2] if len(parts) > 2 else r.get("Video"),
+                         "source": r.get("Source"), "task": r.get("Task"), "reason_codes": ["no_valid_options"],
+                         "verification_verdict": "excluded_no_valid_options",
+                         "verification_evidence": {"resti_id": rid, "option_error": failed[rid]}})
+    return rows, ev, excluded
 
 
 # ------------------------------------------------------------------------------------ writing
@@ -101,6 +113,7 @@ class ReoptionResult:
     seconds: float
     leaks: pd.DataFrame | None = None
     subset: dict | None = None
+    dropped: list = field(default_factory=list)  # rows excluded for no_valid_options
 
 
 def check_input(rel) -> None:
@@ -157,19 +170,22 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
             records = read_jsonl(rel.accepted_file)
         else:
             records = rel.accepted.to_dict("records")
-        rows, ev = reoption_records(records, iface=iface, seed=seed)
+        rows, ev, dropped = reoption_records(records, iface=iface, seed=seed)
         leaks = structural_leaks(rows, iface)
         subset = evaluation_subset(rows, iface, leaks, seed=seed)
         st.write("resti.jsonl", jsonl_text(rows).encode("utf-8"))
         st.write("resti.parquet", rows_to_parquet_bytes(rows))
-        st.write("excluded.jsonl", read_bytes(rel.excluded_file) if rel.excluded_file is not None else b"")
+        excluded_bytes = read_bytes(rel.excluded_file) if rel.excluded_file is not None else b""
+        if dropped:  # appended after the input's own records, which are copied byte for byte
+            excluded_bytes += jsonl_text(dropped, sort_keys=True).encode("utf-8")
+        st.write("excluded.jsonl", excluded_bytes)
         st.write("evaluation_subset.json", (json.dumps(subset, indent=1, ensure_ascii=False) + "\n").encode("utf-8"))
         src_digests = {}
         for f in (rel.accepted_file, rel.excluded_file):
             if f is not None:
                 b = read_bytes(f)
                 src_digests[f.name] = {"bytes": len(b), "sha256": sha256_bytes(b)}
-        meta = release_meta(rows, rel.excluded, st.artifacts(ARTIFACTS), source_meta=rel.meta,
+        meta = release_meta(rows, [*rel.excluded, *dropped], st.artifacts(ARTIFACTS), source_meta=rel.meta,
                             source_digests=src_digests, seed=seed, options=iface.options)
         meta["answer_interface"] = iface.to_dict()
         meta["structural_leaks"] = json.loads(leaks.to_json(orient="records"))
@@ -177,7 +193,7 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
         validation = st.verify()
         if not validation["passed"]:
             raise ReoptionError(f"the rebuilt release fails verification: {failing_checks(validation)}")
-    return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0, leaks, subset)
+    return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0, leaks, subset, dropped)
 
 
 # ------------------------------------------------------------------------------------ audit

@@ -128,8 +128,10 @@ def _cmd_reoption(a) -> int:
         raise InputError(f"options must be a mapping, got {type(opts).__name__}", file=a.params, field="options")
     res = reoption_release(a.release, a.out, seed=seed, options=opts)
     counts = res.meta["counts"]
-    print(f"wrote {res.out_dir}: {counts['accepted']} rows rebuilt, {counts['excluded']} exclusions copied, "
-          f"seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
+    new = len(res.dropped)
+    print(f"wrote {res.out_dir}: {counts['accepted']} rows rebuilt, {counts['excluded'] - new} exclusions copied"
+          + (f", {new} rows excluded (no_valid_options: no options meet the constraints)" if new else "")
+          + f", seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
     print("answer letters: " + " ".join(f"{k}={n}" for k, n in res.meta["answer_letters"].items()))
     return 0
 

@@ -87,12 +87,16 @@ class ScalarKind(KindBuilder):
         bounds = [(math.log(0.5 * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
         if p.answer_is_fixed:
             b = st.draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
+        elif st.free_draw:
+            b = st.draw(gm, p.rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
         else:
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
             b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds)[:, :, 0]
         dec = spec.decimals
-        xs = reuse(gm, p, np.exp(b + off) - eps, rng)
+        xs = np.exp(b + off) - eps
+        if strict:  # the widened tiers leave the reuse rate aside rather than fail the row
+            xs = reuse(gm, p, xs, rng)
         pv = np.round(xs, dec)
         extra = [float(V.parse(t).value) for t in fixed] + ([] if p.answer_is_fixed else [v.value])
         allv = np.column_stack([pv, np.tile(extra, (K, 1))]) if extra else pv
@@ -166,6 +170,16 @@ def reuse(gm: GroupModel, p: RowPlan, xs: np.ndarray, rng) -> np.ndarray:
         return xs
     extra = (rate - natural) / max(1e-9, 1.0 - natural)
     snap = ~already & usable & (rng.random(xs.shape) < extra)
+    # a set never snaps two values onto one answer, nor onto the row's own answer: that would print
+    # one value twice, and the set would be redrawn forever where every value recurs
+    taken = np.round(np.where(already, near, np.nan), p.spec.decimals)
+    own_value = round(float(p.spec.value.value), p.spec.decimals)
+    for k, j in zip(*np.nonzero(snap)):
+        target = round(float(near[k, j]), p.spec.decimals)
+        if target == own_value or target in set(taken[k][np.isfinite(taken[k])]):
+            snap[k, j] = False
+        else:
+            taken[k, j] = target
     return np.where(snap, near, xs)
 
 
