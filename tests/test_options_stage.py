@@ -273,3 +273,58 @@ def test_format_check_reads_an_ill_conditioned_heading():
     r["Candidates"]["C"] = r["Candidates"]["C"].replace("[-1.1,", "[-1.1004,")
     msg = ROW_CHECKS["format_consistency"](parse_row(r, "r0", IFACE))
     assert msg and msg.startswith("C:")
+
+
+def _pose(tx: float) -> str:
+    T = np.eye(4)
+    T[:3, 3] = [tx, 0.0, 0.0]
+    return V.format_pose(T, 2, compact=True)
+
+
+def test_subset_counts_every_premise_reveal_and_answers_equal_to_their_premise():
+    """Two questions printing the same premise (before: a dict kept only the last one), and an answer
+    equal to its own premise: each is counted and dropped by name."""
+    q = ("Given the camera pose at t=1 s in the Waymo world coordinate frame: {}, what is the camera pose in "
+         "the same coordinate frame at t={} s?")
+    v = "seg0_camera_1.mp4"
+    rows = [
+        _row(0, "Pose Estimation", "Waymo", q.format(_pose(0.0), 3), _pose(5.0), video=v, t0=3, t1=3),
+        _row(1, "Pose Estimation", "Waymo", q.format(_pose(5.0), 4), _pose(9.0), video=v, t0=4, t1=4),
+        _row(2, "Pose Estimation", "Waymo", q.format(_pose(5.0), 6), _pose(12.0), video=v, t0=6, t1=6),
+        _row(3, "Pose Estimation", "Waymo", q.format(_pose(20.0), 7), _pose(20.0), video=v, t0=7, t1=7),
+    ]
+    leaks = structural_leaks(rows, IFACE)
+    rev = leaks[leaks["leak"] == "same_video_reveal"].iloc[0]
+    assert rev["rows_affected"] == 2  # r0 (printed by r1 and r2) and r3 (its own premise)
+    sub = evaluation_subset(rows, IFACE, leaks)
+    reasons = {d["id"]: d["reason"] for d in sub["dropped"]}
+    assert reasons == {"r0": "same_video_reveal", "r3": "answer_is_premise"}
+    assert sorted(sub["ids"]) == ["r1", "r2"] and sub["n_kept"] + len(sub["dropped"]) == len(rows)
+
+
+def test_subset_keeps_one_of_each_converse_relation_pair():
+    labels = ["Left", "Right", "Closer", "Farther", "Directly above"]
+    q = ("Viewed from the camera at t=0 s: relative to the {}, is the {} to the left, to the right, closer to the "
+         "camera, farther from the camera, or directly above? Choose the single dominant relation.")
+    rows = [_row(0, "Spatial Relation", "Omni6DPose", q.format("teddy bear", "red suitcase"), "Left",
+                 video="000001.mp4", t0=0, t1=0, labels=labels),
+            _row(1, "Spatial Relation", "Omni6DPose", q.format("red suitcase", "teddy bear"), "Right",
+                 video="000001.mp4", t0=0, t1=0, labels=labels),
+            _row(2, "Spatial Relation", "Omni6DPose", q.format("teddy bear", "green truck"), "Right",
+                 video="000001.mp4", t0=9, t1=9, labels=labels)]
+    sub = evaluation_subset(rows, IFACE)
+    assert {d["id"]: d["reason"] for d in sub["dropped"]}.get("r1") == "converse_pair"
+    assert "r0" not in {d["id"] for d in sub["dropped"] if d["reason"] == "converse_pair"}
+
+
+def test_subset_drops_angles_forced_by_the_one_degree_floor():
+    """12 of 30 heading changes within 0.4 degrees of zero: only one candidate 1 degree apart from the
+    others fits there, so those rows are dropped as floor_forced; the others are kept."""
+    q = "By how many degrees did the camera's heading change between t=0 s and t=5 s? (unit: °)"
+    near = [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.05, -0.05, 0.15, -0.15, 0.35]
+    far = [5.0 + 7.3 * k for k in range(18)]
+    rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2), video=f"seg{i}_camera_1.mp4")
+            for i, x in enumerate(near + far)]
+    sub = evaluation_subset(rows, IFACE)
+    forced = {d["id"] for d in sub["dropped"] if d["reason"] == "floor_forced"}
+    assert forced == {f"r{i}" for i in range(len(near))}

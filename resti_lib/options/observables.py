@@ -56,6 +56,7 @@ class Observables:
     premise: np.ndarray | None = field(default=None, compare=False)
     premise_text: str | None = None
     premise_time: float | None = None
+    reference: str | None = None  # what a relation is relative to ("relative to the X, is the Y")
 
     def to_dict(self) -> dict:
         return {"quantity": self.quantity, "window_s": self.window_s, "subject": self.subject,
@@ -145,6 +146,16 @@ def premise_of(question: str) -> tuple[np.ndarray | None, str | None, float | No
     return None, None, None
 
 
+_RELATIVE = re.compile(r"relative to " + _ART + r"(?P<ref>.+?), is " + _ART + r"(?P<s>.+?) to the ", re.I)
+
+
+def relation_parts(question: str) -> tuple[str, str] | None:
+    """``(reference, target)`` of a relation question ("relative to the X, is the Y to the ..."),
+    lower case, or None."""
+    m = _RELATIVE.search(" ".join(str(question or "").split()))
+    return (m["ref"].strip().lower(), m["s"].strip().lower()) if m else None
+
+
 def observables_of(row: dict, quantity: str) -> Observables:
     """The observables of one ReSTI-schema row (see the module docstring); ``quantity``: what its
     question measures, read by its task (:meth:`resti_lib.options.spec.Interface.quantity_of`)."""
@@ -169,10 +180,12 @@ def observables_of(row: dict, quantity: str) -> Observables:
             m = re.search(r"(\d+(?:\.\d+)?)-second (?:central )?window", q)
             window = float(m.group(1)) if m else None
     subject = "camera" if quantity in ("heading_change", "pose", "trajectory") else subject_of(q)
+    parts = relation_parts(q) if quantity == "relation" else None
+    reference = parts[0] if parts else None
     cls = "camera" if subject == "camera" else head_noun(subject)
     return Observables(task=task, source=source, video=video, sequence=seq, camera=cam, quantity=quantity,
                        time_start=t0, time_end=t1, window_s=window, subject=subject, subject_class=cls,
-                       premise=premise, premise_text=premise_text, premise_time=premise_time)
+                       premise=premise, premise_text=premise_text, premise_time=premise_time, reference=reference)
 
 
-__all__ = ["Observables", "observables_of", "head_noun", "subject_of", "premise_of", "sequence_of"]
+__all__ = ["Observables", "observables_of", "head_noun", "subject_of", "premise_of", "relation_parts", "sequence_of"]

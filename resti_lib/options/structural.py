@@ -41,7 +41,8 @@ import pandas as pd
 from .. import values as V
 from ..errors import InputError
 from ..rng import stable_seed
-from .plan import share_key
+from .observables import relation_parts
+from .plan import dense_window, share_key
 from .spec import Interface, angle_gap, scalar_gap, spec_of
 
 CHANCE = 0.2
@@ -147,22 +148,23 @@ def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
                 add(task, source, "rotation_repeat", n, same, 1.0,
                     f"{same} of {n} answers print the premise's rotation; candidates' printed rotations must differ",
                     "none by options (print rotations at more decimals in the question contract)")
-            premises: dict[str, dict] = defaultdict(dict)
+            premises: dict[str, dict] = defaultdict(lambda: defaultdict(set))  # every printer kept
             for s in sp:
                 if s.obs.premise_text:
-                    premises[s.obs.video][V.parse(s.obs.premise_text).key()] = s.rid
+                    premises[s.obs.video][V.parse(s.obs.premise_text).key()].add(s.rid)
             acc, revealed = 0.0, 0
             for s in sp:
                 prem = premises.get(s.obs.video, {})
                 key = s.value.key()
-                if key in prem and prem[key] != s.rid:
+                if prem.get(key):  # printed as a premise: by another question, or by its own
                     revealed += 1
                     own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
                     others = len([k for k in prem if k not in (key, own)])  # usable as distractors
-                    acc += 1.0 / (1 + min(4, others))
+                    acc += 1.0 if s.rid in prem[key] else 1.0 / (1 + min(4, others))
             if revealed:
                 add(task, source, "same_video_reveal", n, revealed, acc / revealed,
-                    f"{revealed} of {n} answers are printed as another question's premise in the same video",
+                    f"{revealed} of {n} answers are printed as a premise in the same video (their own or another "
+                    "question's)",
                     "evaluation subset keeps one question of each revealing pair")
         if kind == "label":
             c = Counter(s.detail for s in sp)
@@ -202,6 +204,18 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
     for i, r in enumerate(records):
         if (r.get("Task"), r.get("Source")) in meta_cells:
             drop[rid[i]] = "metadata"
+    # converse relation questions of one video and time (A relative to B, B relative to A): one kept
+    seen_pairs: set = set()
+    for i, s in enumerate(specs):
+        if s is None or s.kind != "label" or rid[i] in drop:
+            continue
+        parts = relation_parts(records[i].get("Question"))
+        if parts is None:
+            continue
+        pair = (s.obs.video, s.obs.time_start, frozenset(parts))
+        if pair in seen_pairs:
+            drop[rid[i]] = "converse_pair"
+        seen_pairs.add(pair)
     # balanced labels per (task, source) of categorical tasks
     groups: dict[tuple, dict[str, list[int]]] = defaultdict(lambda: defaultdict(list))
     for i, s in enumerate(specs):
@@ -224,17 +238,38 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
         if k in seen_rep:
             drop[rid[i]] = "repeated_answer"
         seen_rep.add(k)
-    # one question of each same-video revealing group of Pose rows
-    premises: dict[str, dict] = defaultdict(dict)
+    # Pose rows: an answer equal to its own premise; then one question of each pair where one
+    # question prints the other's answer as its premise (every such pair counted, none overwritten)
+    by_premise: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s is not None and s.kind == "pose" and s.obs.premise_text:
-            premises[s.obs.video][V.parse(s.obs.premise_text).key()] = i
+            try:
+                by_premise[(s.obs.video, V.parse(s.obs.premise_text).key())].append(i)
+            except InputError:
+                continue
     for i, s in enumerate(specs):
         if s is None or s.kind != "pose" or rid[i] in drop:
             continue
-        j = premises.get(s.obs.video, {}).get(s.value.key())
-        if j is not None and j != i and rid[j] not in drop:
+        printers = [j for j in by_premise.get((s.obs.video, s.value.key()), []) if rid[j] not in drop]
+        if i in printers:
+            drop[rid[i]] = "answer_is_premise"
+        elif printers:
             drop[rid[i]] = "same_video_reveal"
+    # angles forced by the separation floor: the answers inside a window narrower than the floor
+    # that holds more than a fifth of a cell's answers (only one candidate fits there, so the
+    # candidate inside it is the answer more often than one in five)
+    cells_a: dict[tuple, list[int]] = defaultdict(list)
+    for i, s in enumerate(specs):
+        if s is not None and s.kind == "angle" and rid[i] not in drop:
+            cells_a[(s.task, s.source)].append(i)
+    for _, ids in sorted(cells_a.items()):
+        vals = np.array([specs[i].value.value for i in ids])
+        win = dense_window(vals, angle_gap(specs[ids[0]], iface.options))
+        if win is not None:
+            lo, hi, _ = win
+            for i, x in zip(ids, vals):
+                if lo - 1e-9 <= x <= hi + 1e-9:
+                    drop[rid[i]] = "floor_forced"
     # zero answers at most one in five of their group
     zgroups: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
@@ -252,14 +287,18 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
     keep = [r for r in rid if r not in drop]
     return {
         "rule": ("Rows of the release kept for a blind-balanced evaluation: cells whose answer follows from the "
-                 "video name are left out; categorical answers are balanced to the rarest label per task and "
-                 "source; of rows of one recording asking the same thing with the same answer, one is kept; of "
-                 "Pose questions that print each other's answer as premise, one is kept; exact-zero answers are "
-                 "kept at most one in five of their group. Selection seeded; the release is unchanged."),
+                 "video name are left out; of converse relation questions (A relative to B, B relative to A, one "
+                 "video and time) one is kept; categorical answers are balanced to the rarest label per task and "
+                 "source; of rows of one recording asking the same thing with the same answer, one is kept; a "
+                 "Pose answer equal to its own premise, or printed as the premise of another question of its "
+                 "video, is left out; angles inside a window narrower than the separation floor that holds more "
+                 "than a fifth of their cell (forced by the floor) are left out; exact-zero answers are kept at "
+                 "most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),
         "n_kept": len(keep),
         "dropped_by_reason": dict(sorted(Counter(drop.values()).items())),
+        "dropped": [{"id": r, "reason": drop[r]} for r in rid if r in drop],
         "ids": keep,
     }
 
