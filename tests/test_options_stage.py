@@ -328,3 +328,33 @@ def test_subset_drops_angles_forced_by_the_one_degree_floor():
     sub = evaluation_subset(rows, IFACE)
     forced = {d["id"] for d in sub["dropped"] if d["reason"] == "floor_forced"}
     assert forced == {f"r{i}" for i in range(len(near))}
+
+
+def test_near_equal_answers_of_one_recording_get_translated_candidate_sets():
+    """The camera videos of one segment ask one heading change and get answers 0.01-0.3 degrees
+    apart: their candidate sets are translates of one set, so matching candidates across the rows
+    (within half a degree) pairs every candidate, not only the answer."""
+    q = "By how many degrees did the camera's heading change between t=0 s and t=19.8 s? (unit: °)"
+    rng = np.random.default_rng(7)
+    rows = []
+    for seg in range(12):
+        base = float(rng.uniform(-150, 150))
+        for cam, d in zip((1, 2, 4), (0.0, 0.01, 0.3)):
+            rows.append(_row(len(rows), "Ego-Centric Orientation", "Waymo", q, V.format_angle(base + d, 2),
+                             video=f"seg{seg}_camera_{cam}.mp4", t0=0.0, t1=19.8))
+    out, ev, _ = build_options(iface=IFACE, records=rows, seed=0)
+    by_rid = {r["ReSTI ID"]: r for r in out}
+    coupled = ev.dropna(subset=["coupled_with"]) if "coupled_with" in ev else ev.iloc[:0]
+    assert len(coupled) == 24  # two of every three rows
+    for rid, base in zip(coupled["rid"], coupled["coupled_with"]):
+        a, b = by_rid[rid], by_rid[base]
+        d = V.parse(a["Answer Detail"]).value - V.parse(b["Answer Detail"]).value
+        xa = sorted(V.parse(s).value for s in a["Candidates"].values())
+        xb = sorted(V.parse(s).value for s in b["Candidates"].values())
+        assert np.allclose(np.array(xa) - np.array(xb), d, atol=0.011)  # a translate (printing aside)
+        for L in LETTERS:  # every candidate has a partner within half a degree in the other set
+            x = V.parse(a["Candidates"][L]).value
+            assert min(abs(x - y) for y in xb) < 0.5
+    for r in out:
+        p = parse_row(r, r["ReSTI ID"], IFACE)
+        assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["format_consistency"](p) is None

@@ -74,6 +74,7 @@ class RowPlan:
     answer_is_fixed: bool = False
     donor: str | None = None
     share_with: str | None = None  # another row whose candidate set this row reuses
+    couple_with: str | None = None  # another row whose candidate set this row's is a translate of
     evidence: dict = field(default_factory=dict)
 
     @property
@@ -96,6 +97,20 @@ def share_key(spec: OptionSpec) -> tuple:
     window = None if o.window_s is None else round(float(o.window_s), 3)
     subject = " ".join(str(o.subject or "").lower().split())
     return (spec.task, spec.source, o.quantity, subject, window, o.premise_text, spec.detail)
+
+
+def couple_key(spec: OptionSpec) -> tuple:
+    """What two rows of one recording must have in common for their candidate sets to be coupled
+    (one a translate of the other by the difference of their answers): task, source, the source
+    sequence, the measured quantity of the same subject over the same window, the premise, the
+    unit and printed decimals. The camera videos of one segment ask the ego heading change over one
+    window and get answers a hundredth of a degree apart (the mounts differ)."""
+    o = spec.obs
+    window = None if o.window_s is None else round(float(o.window_s), 3)
+    start = None if o.time_start is None else round(float(o.time_start), 3)
+    subject = " ".join(str(o.subject or "").lower().split())
+    return (spec.task, spec.source, o.sequence, o.quantity, subject, start, window, o.premise_text, spec.unit,
+            spec.decimals)
 
 
 def dense_window(values, gap: float, *, min_rows: int = 5) -> tuple[float, float, int] | None:

@@ -50,7 +50,7 @@ from .. import values as V
 from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
 from .kinds import builder_for
-from .plan import GroupModel, Reject, RowPlan, constrained_schedule, group_key, reprint, share_key, signed_rank
+from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
 from .spec import (
     Interface,
     spec_of,
@@ -76,6 +76,7 @@ class Stage:
             dup = [k for k, n in Counter(p.rid for p in self.plans).items() if n > 1]
             raise InputError(f"row ids are not unique, e.g. {dup[:3]}", field="ReSTI ID")
         self.by_id = {p.rid: p for p in self.plans}
+        self.index = {p.rid: i for i, p in enumerate(self.plans)}
         self.groups: dict[str, GroupModel] = {}
         self.cur_draw = None
         self.last_draw = None
@@ -121,6 +122,20 @@ class Stage:
                 p.share_with = first[key]
             else:
                 first.setdefault(key, p.rid)
+        # rows of one recording asking the same quantity over the same window with answers closer
+        # than the separation floor: their candidate sets are translates of one set (each by the
+        # difference of the answers), so comparing them singles out no candidate
+        bases: dict[tuple, list[RowPlan]] = defaultdict(list)
+        for p in self.plans:
+            if p.share_with is not None or p.answer_is_fixed or p.fixed or p.spec.kind not in ONE_D:
+                continue
+            kb = builder_for(p.spec.kind)
+            key = couple_key(p.spec)
+            base = next((b for b in bases[key] if kb.near(self, b, p)), None)
+            if base is not None:
+                p.couple_with = base.rid
+            else:
+                bases[key].append(p)
 
     # -------------------------------------------------------------------- building
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
@@ -197,9 +212,16 @@ class Stage:
             it = tqdm(self.plans, desc="options", unit="row", leave=False)
         reveals = self._reveals()
         for p, r in zip(it, self.records):
+            coupled = None
+            if p.couple_with is not None and p.couple_with in built:
+                coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p,
+                                                              built[p.couple_with])
             if p.share_with is not None and p.share_with in built:
                 strings = list(built[p.share_with])
                 p.evidence.update({"shared_with": p.share_with})
+            elif coupled is not None and self._coupled_ok(p, coupled):
+                strings = coupled
+                p.evidence.update({"coupled_with": p.couple_with})
             else:
                 try:
                     strings = self._build_row(p, r, reveals)
@@ -221,6 +243,14 @@ class Stage:
                        "s_factor": self.groups[p.group].info.get("s_factor", 1.0) if p.group in self.groups else None,
                        **p.evidence})
         return out, pd.DataFrame(ev), failed
+
+    def _coupled_ok(self, p: RowPlan, strings: list[str]) -> bool:
+        """A translated set meets the row's own requirements (the checks ``resti verify`` runs)."""
+        from .checks import ROW_CHECKS, parse_row
+
+        rec = {**self.records[self.index[p.rid]], "Candidates": dict(zip(LETTERS, strings)), "Answer": "E"}
+        pr = parse_row(rec, p.rid, self.iface)
+        return all(ROW_CHECKS[c](pr) is None for c in ("separation", "plausible_given_question", "format_consistency"))
 
     def _letter(self, p: RowPlan, strings: list[str]) -> tuple[dict, str]:
         """The answer at its scheduled letter; the others in a seeded random order."""

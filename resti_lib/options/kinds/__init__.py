@@ -29,6 +29,16 @@ class KindBuilder:
         """Five candidate strings (the answer among them) for row ``p``; raises ``Reject`` to redraw."""
         raise NotImplementedError
 
+    def near(self, st, a, b) -> bool:
+        """Do the answers of rows ``a`` and ``b`` agree within the separation floor (so that their
+        candidate sets can be coupled)? Kinds that cannot couple say no."""
+        return False
+
+    def translate(self, st, base, p, strings: list[str]) -> list[str] | None:
+        """Row ``p``'s candidates as the translate of ``base``'s ``strings`` by the difference of
+        their answers (``p``'s own answer in the answer's place), or None when they cannot be."""
+        return None
+
 
 def register_kind(kind: str):
     """Class decorator: register a builder for ``kind``."""

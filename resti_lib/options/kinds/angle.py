@@ -74,6 +74,16 @@ class AngleKind(KindBuilder):
             return strings
         raise Reject("no drawn set met the separation constraints")
 
+    def near(self, st, a, b) -> bool:
+        return abs(float(V.wrap_degrees(a.spec.value.value - b.spec.value.value))) < angle_gap(a.spec, st.params)
+
+    def translate(self, st, base, p, strings):
+        d = p.spec.value.value - base.spec.value.value
+        vals = [float(V.wrap_degrees(float(V.parse(s).value) + d)) for s in strings if s != base.spec.detail]
+        out = [V.format_angle(-180.0 if round(x, p.spec.decimals) >= 180.0 else x, p.spec.decimals) for x in vals]
+        out.append(p.spec.detail)
+        return out if len(set(out)) == 5 else None
+
 
 def window_slot(st, g: str, gm: GroupModel, ps: list[RowPlan], values: np.ndarray, gap: float) -> None:
     """A dense window of answers (:func:`dense_window`) is a slot: every row whose answer lies in

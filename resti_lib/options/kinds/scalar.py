@@ -122,6 +122,18 @@ class ScalarKind(KindBuilder):
             return alls
         raise Reject("no drawn set met the separation and plausibility constraints")
 
+    def near(self, st, a, b) -> bool:
+        x, y = a.spec.value.value, b.spec.value.value
+        return x > 0 and y > 0 and abs(x - y) < scalar_gap(a.spec, st.params, max(x, y))
+
+    def translate(self, st, base, p, strings):
+        d = p.spec.value.value - base.spec.value.value
+        vals = [float(V.parse(s).value) + d for s in strings if s != base.spec.detail]
+        if any(x <= 0 for x in vals):
+            return None
+        out = [V.format_scalar(x, p.spec.unit, p.spec.decimals) for x in vals] + [p.spec.detail]
+        return out if len(set(out)) == 5 else None
+
 
 def fit_reuse(gm: GroupModel, ps: list) -> None:
     """Answers that recur in other recordings (the same object asked in two scenes): the share of
