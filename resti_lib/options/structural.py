@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, defaultdict
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -80,6 +81,113 @@ def _floor_bound(values: np.ndarray, gaps: np.ndarray) -> tuple[float, str, int,
     return best, where, inside, slots
 
 
+Leak = tuple  # (leak, rows affected, accuracy on them, detail, remedy)
+
+
+def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
+    """Scalars and angles: answers crowded inside a window narrower than the separation floor, and
+    exact zeros above a fifth of a quantity's answers."""
+    out = []
+    kind = sp[0].kind
+    by_q: dict[str, list] = defaultdict(list)
+    for s in sp:
+        by_q[s.obs.quantity].append(s)
+    for q, ss in sorted(by_q.items()):
+        vals = np.array([s.value.value for s in ss], float)
+        nonzero = [s for s in ss if kind == "angle" or s.value.value > 0]
+        if kind == "angle":
+            gaps = np.array([angle_gap(s, params) for s in nonzero])
+        else:
+            gaps = np.array([max(scalar_gap(s, params, s.value.value),
+                                 params["separation"]["scalar"]["min_rel_gap"] * s.value.value) for s in nonzero])
+        if len(nonzero) >= 5:
+            bound, where, inside, slots = _floor_bound(np.array([s.value.value for s in nonzero], float), gaps)
+            if bound > CHANCE and inside >= 5:
+                out.append(("floor_concentration", inside, 1.0 / slots, f"{q}: {where}",
+                            "none by options; re-contract the questions or accept and report"))
+        zeros = int((vals <= 0).sum()) if kind == "scalar" else 0
+        if zeros and zeros / len(ss) > CHANCE:
+            carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
+            out.append(("zero_slot", carriers, zeros / carriers,
+                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in {carriers} rows",
+                        "evaluation subset keeps zero answers at one row in five"))
+    return out
+
+
+def _repeat_leaks(sp: list, n: int) -> list[Leak]:
+    """Rows of one source sequence that ask one thing and share the answer."""
+    reps: dict[tuple, int] = defaultdict(int)
+    for s in sp:
+        if s.kind != "label":
+            reps[(s.obs.sequence, *share_key(s))] += 1
+    repeated = sum(c for c in reps.values() if c > 1)
+    if not repeated:
+        return []
+    return [("repeated_answer", repeated, 1.0,
+             f"{repeated} of {n} rows share question and answer with another row of their source sequence "
+             f"({sum(1 for c in reps.values() if c > 1)} groups)",
+             "they share one candidate set; the evaluation subset keeps one row of each group")]
+
+
+def _pose_leaks(sp: list, n: int) -> list[Leak]:
+    """Pose answers that print the premise's rotation, and answers printed as a premise in their video."""
+    out = []
+    same = 0
+    for s in sp:
+        o = s.obs
+        if o.premise is not None and o.premise_text is not None:
+            pr = V.parse(o.premise_text)
+            if np.array_equal(np.round(np.array(pr.R), 6), np.round(np.array(s.value.R), 6)):
+                same += 1
+    if same / n > CHANCE:
+        out.append(("rotation_repeat", same, 1.0,
+                    f"{same} of {n} answers print the premise's rotation; candidates' printed rotations must differ",
+                    "none by options (print rotations at more decimals in the question contract)"))
+    premises: dict[str, dict] = defaultdict(lambda: defaultdict(set))  # every printer kept
+    for s in sp:
+        if s.obs.premise_text:
+            premises[s.obs.video][V.parse(s.obs.premise_text).key()].add(s.rid)
+    acc, revealed = 0.0, 0
+    for s in sp:
+        prem = premises.get(s.obs.video, {})
+        key = s.value.key()
+        if prem.get(key):  # printed as a premise: by another question, or by its own
+            revealed += 1
+            own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
+            others = len([k for k in prem if k not in (key, own)])  # usable as distractors
+            acc += 1.0 if s.rid in prem[key] else 1.0 / (1 + min(4, others))
+    if revealed:
+        out.append(("same_video_reveal", revealed, acc / revealed,
+                    f"{revealed} of {n} answers are printed as a premise in the same video (their own or another "
+                    "question's)", "evaluation subset keeps one question of each revealing pair"))
+    return out
+
+
+def _label_leaks(sp: list, n: int) -> list[Leak]:
+    """Categorical answers: the most frequent label, and the label the video name's camera predicts."""
+    out = []
+    lab, top = Counter(s.detail for s in sp).most_common(1)[0]
+    if top / n > CHANCE:
+        out.append(("label_prior", n, top / n, f"{top} of {n} answers are {lab!r}",
+                    "evaluation subset balances the labels"))
+    cams = [(s.obs.camera, s.detail) for s in sp if s.obs.camera is not None]
+    if len(cams) >= 5:
+        by_cam: dict = defaultdict(Counter)
+        for cam, label in cams:
+            by_cam[cam][label] += 1
+        hits = 0
+        for cam, label in cams:  # leave one out: the majority label of the other rows of the camera
+            cnt = by_cam[cam].copy()
+            cnt[label] -= 1
+            best = cnt.most_common(1)[0] if sum(cnt.values()) else (None, 0)
+            hits += best[0] == label
+        if hits / len(cams) > CHANCE:
+            out.append(("metadata", len(cams), hits / len(cams),
+                        f"the camera number in the video name predicts the label in {hits} of {len(cams)} rows",
+                        "evaluation subset leaves out cells whose label follows from the video name"))
+    return out
+
+
 def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
     """One row per (task, source, leak) that options cannot remove (see the module docstring), under
     the answer interface the options are built with."""
@@ -89,122 +197,50 @@ def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
     for i, r in enumerate(records):
         cells[(str(r.get("Task")), str(r.get("Source")))].append(i)
     out = []
-
-    def add(task, source, leak, n, affected, acc, detail, remedy):
-        out.append({"task": task, "source": source, "leak": leak, "n_rows": n, "rows_affected": int(affected),
-                    "accuracy_on_affected": round(float(acc), 4), "detail": detail, "remedy": remedy})
-
     for (task, source), idx in sorted(cells.items()):
         sp = [specs[i] for i in idx if specs[i] is not None]
         n = len(idx)
         if not sp:
             continue
         kind = sp[0].kind
-        if kind in ("scalar", "angle"):
-            by_q: dict[str, list] = defaultdict(list)
-            for s in sp:
-                by_q[s.obs.quantity].append(s)
-            for q, ss in sorted(by_q.items()):
-                vals = np.array([s.value.value for s in ss], float)
-                nonzero = [s for s in ss if kind == "angle" or s.value.value > 0]
-                if kind == "angle":
-                    gaps = np.array([angle_gap(s, params) for s in nonzero])
-                else:
-                    gaps = np.array([max(scalar_gap(s, params, s.value.value),
-                                         params["separation"]["scalar"]["min_rel_gap"] * s.value.value)
-                                     for s in nonzero])
-                if len(nonzero) >= 5:
-                    nz = np.array([s.value.value for s in nonzero], float)
-                    bound, where, inside, slots = _floor_bound(nz, gaps)
-                    if bound > CHANCE and inside >= 5:
-                        add(task, source, "floor_concentration", n, inside, 1.0 / slots, f"{q}: {where}",
-                            "none by options; re-contract the questions or accept and report")
-                zeros = int((vals <= 0).sum()) if kind == "scalar" else 0
-                if zeros and zeros / len(ss) > CHANCE:
-                    carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
-                    add(task, source, "zero_slot", n, carriers, zeros / carriers,
-                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in "
-                        f"{carriers} rows",
-                        "evaluation subset keeps zero answers at one row in five")
-        reps: dict[tuple, int] = defaultdict(int)
-        for sp_ in sp:
-            if sp_.kind != "label":
-                reps[(sp_.obs.sequence, *share_key(sp_))] += 1
-        repeated = sum(c for c in reps.values() if c > 1)
-        if repeated:
-            add(task, source, "repeated_answer", n, repeated, 1.0,
-                f"{repeated} of {n} rows share question and answer with another row of their source sequence "
-                f"({sum(1 for c in reps.values() if c > 1)} groups)",
-                "they share one candidate set; the evaluation subset keeps one row of each group")
-        if kind == "pose":
-            same = 0
-            for s in sp:
-                o = s.obs
-                if o.premise is not None and o.premise_text is not None:
-                    pr = V.parse(o.premise_text)
-                    if np.array_equal(np.round(np.array(pr.R), 6), np.round(np.array(s.value.R), 6)):
-                        same += 1
-            if same / n > CHANCE:
-                add(task, source, "rotation_repeat", n, same, 1.0,
-                    f"{same} of {n} answers print the premise's rotation; candidates' printed rotations must differ",
-                    "none by options (print rotations at more decimals in the question contract)")
-            premises: dict[str, dict] = defaultdict(lambda: defaultdict(set))  # every printer kept
-            for s in sp:
-                if s.obs.premise_text:
-                    premises[s.obs.video][V.parse(s.obs.premise_text).key()].add(s.rid)
-            acc, revealed = 0.0, 0
-            for s in sp:
-                prem = premises.get(s.obs.video, {})
-                key = s.value.key()
-                if prem.get(key):  # printed as a premise: by another question, or by its own
-                    revealed += 1
-                    own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
-                    others = len([k for k in prem if k not in (key, own)])  # usable as distractors
-                    acc += 1.0 if s.rid in prem[key] else 1.0 / (1 + min(4, others))
-            if revealed:
-                add(task, source, "same_video_reveal", n, revealed, acc / revealed,
-                    f"{revealed} of {n} answers are printed as a premise in the same video (their own or another "
-                    "question's)",
-                    "evaluation subset keeps one question of each revealing pair")
-        if kind == "label":
-            c = Counter(s.detail for s in sp)
-            lab, top = c.most_common(1)[0]
-            if top / n > CHANCE:
-                add(task, source, "label_prior", n, n, top / n, f"{top} of {n} answers are {lab!r}",
-                    "evaluation subset balances the labels")
-            cams = [(s.obs.camera, s.detail) for s in sp if s.obs.camera is not None]
-            if len(cams) >= 5:
-                by_cam: dict = defaultdict(Counter)
-                for cam, lab in cams:
-                    by_cam[cam][lab] += 1
-                hits = 0
-                for cam, lab in cams:  # leave one out: the majority label of the other rows of the camera
-                    cnt = by_cam[cam].copy()
-                    cnt[lab] -= 1
-                    best = cnt.most_common(1)[0] if sum(cnt.values()) else (None, 0)
-                    hits += best[0] == lab
-                if hits / len(cams) > CHANCE:
-                    add(task, source, "metadata", n, len(cams), hits / len(cams),
-                        f"the camera number in the video name predicts the label in {hits} of {len(cams)} rows",
-                        "evaluation subset leaves out cells whose label follows from the video name")
+        found = _floor_and_zero_leaks(sp, params) if kind in ("scalar", "angle") else []
+        found += _repeat_leaks(sp, n)
+        found += _pose_leaks(sp, n) if kind == "pose" else []
+        found += _label_leaks(sp, n) if kind == "label" else []
+        for leak, affected, acc, detail, remedy in found:
+            out.append({"task": task, "source": source, "leak": leak, "n_rows": n, "rows_affected": int(affected),
+                        "accuracy_on_affected": round(float(acc), 4), "detail": detail, "remedy": remedy})
     return pd.DataFrame(out, columns=COLUMNS)
 
 
-def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame | None = None, *, seed: int = 0
-                      ) -> dict:
-    """A documented subset of the rows (ids and the rule) under which the label prior, metadata,
-    same-video reveal and zero-slot attacks are at chance. The release itself is not changed."""
-    leaks = structural_leaks(records, iface) if leaks is None else leaks
-    rid = [str(r.get("ReSTI ID") or i) for i, r in enumerate(records)]
-    specs = _specs(records, iface)
-    drop: dict[str, str] = {}
-    rng = np.random.default_rng(stable_seed(seed, "evaluation_subset"))
+@dataclass
+class _Selection:
+    """What the steps of :func:`evaluation_subset` share: the rows, their specs and ids, the rows
+    dropped so far (id -> reason), the seeded RNG, the interface and the structural leaks."""
+
+    records: list
+    specs: list
+    rid: list
+    drop: dict
+    rng: np.random.Generator
+    iface: Interface
+    leaks: pd.DataFrame
+
+
+def _drop_metadata(c: _Selection) -> None:
+    """Cells whose label follows from the video name (the metadata leak at 90% or more)."""
+    records, rid, drop, leaks = c.records, c.rid, c.drop, c.leaks
     meta_cells = {(t, s) for t, s, lk, b in zip(leaks["task"], leaks["source"], leaks["leak"],
                                                  leaks["accuracy_on_affected"]) if lk == "metadata" and b >= 0.9}
     for i, r in enumerate(records):
         if (r.get("Task"), r.get("Source")) in meta_cells:
             drop[rid[i]] = "metadata"
-    # converse relation questions of one video and time (A relative to B, B relative to A): one kept
+
+
+def _drop_converse_pairs(c: _Selection) -> None:
+    """Of converse relation questions of one video and time (A relative to B, B relative to A), one is
+    kept."""
+    records, specs, rid, drop = c.records, c.specs, c.rid, c.drop
     seen_pairs: set = set()
     for i, s in enumerate(specs):
         if s is None or s.kind != "label" or rid[i] in drop:
@@ -216,7 +252,11 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
         if pair in seen_pairs:
             drop[rid[i]] = "converse_pair"
         seen_pairs.add(pair)
-    # balanced labels per (task, source) of categorical tasks
+
+
+def _balance_labels(c: _Selection) -> None:
+    """Categorical answers balanced to the rarest label per task and source."""
+    specs, rid, drop, rng = c.specs, c.rid, c.drop, c.rng
     groups: dict[tuple, dict[str, list[int]]] = defaultdict(lambda: defaultdict(list))
     for i, s in enumerate(specs):
         if s is not None and s.kind == "label" and rid[i] not in drop:
@@ -229,7 +269,11 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
             for j, i in enumerate(ids):
                 if j not in keep:
                     drop[rid[i]] = "label_balance"
-    # one row of each group of rows of a sequence that ask the same thing with the same answer
+
+
+def _drop_repeated_answers(c: _Selection) -> None:
+    """One row of each group of rows of a sequence that ask the same thing with the same answer."""
+    specs, rid, drop = c.specs, c.rid, c.drop
     seen_rep: set = set()
     for i, sp_ in enumerate(specs):
         if sp_ is None or sp_.kind == "label" or rid[i] in drop:
@@ -238,7 +282,12 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
         if k in seen_rep:
             drop[rid[i]] = "repeated_answer"
         seen_rep.add(k)
-    # Pose rows: an answer equal to its own premise; then one question of each pair where one
+
+
+def _drop_pose_reveals(c: _Selection) -> None:
+    """Pose answers equal to their own premise, and answers printed as the premise of another question
+    of their video."""
+    specs, rid, drop = c.specs, c.rid, c.drop
     # question prints the other's answer as its premise (every such pair counted, none overwritten)
     by_premise: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
@@ -255,7 +304,12 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
             drop[rid[i]] = "answer_is_premise"
         elif printers:
             drop[rid[i]] = "same_video_reveal"
-    # angles forced by the separation floor: the answers inside a window narrower than the floor
+
+
+def _drop_floor_forced(c: _Selection) -> None:
+    """Angles inside a window narrower than the separation floor that holds more than a fifth of their
+    cell."""
+    specs, rid, drop, iface = c.specs, c.rid, c.drop, c.iface
     # that holds more than a fifth of a cell's answers (only one candidate fits there, so the
     # candidate inside it is the answer more often than one in five)
     cells_a: dict[tuple, list[int]] = defaultdict(list)
@@ -270,7 +324,11 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
             for i, x in zip(ids, vals):
                 if lo - 1e-9 <= x <= hi + 1e-9:
                     drop[rid[i]] = "floor_forced"
-    # zero answers at most one in five of their group
+
+
+def _cap_zero_answers(c: _Selection) -> None:
+    """Exact-zero answers at most one in five of their group."""
+    specs, rid, drop, rng = c.specs, c.rid, c.drop, c.rng
     zgroups: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
@@ -284,6 +342,25 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
             for j, i in enumerate(zeros):
                 if j not in pick:
                     drop[rid[i]] = "zero_slot"
+
+
+#: The steps of :func:`evaluation_subset`, in order (each sees the rows the earlier ones kept).
+SUBSET_STEPS = (_drop_metadata, _drop_converse_pairs, _balance_labels, _drop_repeated_answers, _drop_pose_reveals,
+                _drop_floor_forced, _cap_zero_answers)
+
+
+def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame | None = None, *, seed: int = 0
+                      ) -> dict:
+    """A documented subset of the rows (ids, every dropped row with its reason, and the rule) under
+    which the structural leaks are at chance. The release itself is not changed. The steps run in
+    :data:`SUBSET_STEPS` order, each on the rows the earlier ones kept."""
+    leaks = structural_leaks(records, iface) if leaks is None else leaks
+    rid = [str(r.get("ReSTI ID") or i) for i, r in enumerate(records)]
+    drop: dict[str, str] = {}
+    c = _Selection(records, _specs(records, iface), rid, drop, np.random.default_rng(stable_seed(seed, "evaluation_subset")),
+                   iface, leaks)
+    for step in SUBSET_STEPS:
+        step(c)
     keep = [r for r in rid if r not in drop]
     return {
         "rule": ("Rows of the release kept for a blind-balanced evaluation: cells whose answer follows from the "
