@@ -469,9 +469,8 @@ class Grounding(Task):
         return c
 
     def reconstruct(self, case: Case) -> None:
-        c, row, p, o = case.contract, case.row, case.params, case.outcome
+        c, row, p = case.contract, case.row, case.params
         desc = _description(c)
-        legacy = case.legacy
         if c.sequence is None or not desc:
             raise Exclude("unsupported_question", problem="no sequence or no object description in the row",
                           description=desc)
@@ -483,7 +482,23 @@ class Grounding(Task):
                 else "unsupported_question"
             raise Exclude(reason, error=str(e), t=t) from None
         case.provenance(files=view.files, frames=dict(view.frame), chain=view.chain)
-        ref = resolve(desc, c.source, view.labels, synonyms=p.get("synonyms"), group_words=p["group_words"])
+        ref, label, cands, visible, ref_ev = self._referent(case, view, desc)
+        tol = legacy_tolerance(case.legacy, p)
+        diag = self._diagnose_centre(case, view, visible or cands or view.instances, bool(visible), bool(cands), tol)
+        c.entity = {**c.entity, "description": desc, "label": label}
+        c.times = [view.t]
+        c.time_stated = True
+        c.frame = "OpenCV camera (+X right, +Y down, +Z forward)"
+        c.params = {**c.params, **{k: v for k, v in view.frame.items() if k != "t"}}
+        target = self._target(case, view, ref, label, cands, visible, ref_ev, tol)
+        self._measure_box(case, view, target, desc, label, diag)
+
+    @staticmethod
+    def _referent(case: Case, view, desc: str):
+        """The description resolved against the frame's source labels: the candidate instances, the
+        visible ones and the referent evidence."""
+        p, o = case.params, case.outcome
+        ref = resolve(desc, case.contract.source, view.labels, synonyms=p.get("synonyms"), group_words=p["group_words"])
         label = ref.box_type or ref.label
         cands = [i for i in view.instances if ref.admits(i.label, i.box.lwh)]
         visible = [i for i in cands if i.visible]
@@ -497,29 +512,36 @@ class Grounding(Task):
                   "candidate_depths_m": {i.id: round(i.depth, 4) for i in cands[:20]}}
         o.evidence["referent"] = ref_ev
         o.evidence["frame"] = dict(view.frame)
-        if c.source == "Omni6DPose":  # the world of the centres: the camera track from the static objects
-            o.evidence["camera_track"] = case.ctx.rope(c.sequence).camera_evidence()
-        tol = legacy_tolerance(legacy, p)
-        pool = visible or cands or view.instances
+        if case.contract.source == "Omni6DPose":  # the world of the centres: the camera track from the static objects
+            o.evidence["camera_track"] = case.ctx.rope(case.contract.sequence).camera_evidence()
+        return ref, label, cands, visible, ref_ev
+
+    @staticmethod
+    def _diagnose_centre(case: Case, view, pool: list, any_visible: bool, any_candidate: bool, tol: float):
+        """Which hypothesis reproduces the legacy centre (the alignment omitted, a time shift, ...);
+        None without a readable legacy box."""
+        legacy, o = case.legacy, case.outcome
         diag = score_hypotheses(np.array(legacy.center), pool, tol) if legacy is not None else None
-        if diag is not None:
-            inst = diag["instance"]
-            o.evidence["diagnosis"] = {
-                "legacy_center": list(legacy.center), "pool": "visible" if visible else ("label" if cands else "all"),
-                "legacy_points_at": inst.id if inst is not None and diag["winner"] else None,
-                "residuals_m": diag["residuals_m"], "time_shift": diag["time_shift"],
-                "reproduced_by": diag["reproduced_by"], "winner": diag["winner"], "tolerance_m": tol}
-            if diag["winner"] == "alignment_omitted" or diag["winner"] == "time_shift:alignment_omitted":
-                o.defects.append("grounding_alignment_omitted")
-            leg_world = _world_point(view, np.array(legacy.center))
-            near_id, near_d = _nearest_object(view, leg_world)
-            o.evidence["diagnosis"].update({"legacy_world_point": leg_world.tolist(), "nearest_object": near_id,
-                                            "legacy_to_nearest_object_m": near_d})
-        c.entity = {**c.entity, "description": desc, "label": label}
-        c.times = [view.t]
-        c.time_stated = True
-        c.frame = "OpenCV camera (+X right, +Y down, +Z forward)"
-        c.params = {**c.params, **{k: v for k, v in view.frame.items() if k != "t"}}
+        if diag is None:
+            return None
+        inst = diag["instance"]
+        o.evidence["diagnosis"] = {
+            "legacy_center": list(legacy.center), "pool": "visible" if any_visible else ("label" if any_candidate else "all"),
+            "legacy_points_at": inst.id if inst is not None and diag["winner"] else None,
+            "residuals_m": diag["residuals_m"], "time_shift": diag["time_shift"],
+            "reproduced_by": diag["reproduced_by"], "winner": diag["winner"], "tolerance_m": tol}
+        if diag["winner"] == "alignment_omitted" or diag["winner"] == "time_shift:alignment_omitted":
+            o.defects.append("grounding_alignment_omitted")
+        leg_world = _world_point(view, np.array(legacy.center))
+        near_id, near_d = _nearest_object(view, leg_world)
+        o.evidence["diagnosis"].update({"legacy_world_point": leg_world.tolist(), "nearest_object": near_id,
+                                        "legacy_to_nearest_object_m": near_d})
+        return diag
+
+    @staticmethod
+    def _target(case: Case, view, ref, label, cands: list, visible: list, ref_ev: dict, tol: float):
+        """The one visible instance the description names, or the exclusion that says why there is none."""
+        o = case.outcome
         if ref.grouped:
             o.defects.append("grouped_referent")
             raise Exclude("grouped_referent", **_excl_ev(ref_ev, view))
@@ -531,7 +553,7 @@ class Grounding(Task):
             raise Exclude("not_visible_at_frame", **_excl_ev(ref_ev, view))
         if len(visible) > 1:
             finer = view.coarse_taxonomy
-            picked = _legacy_pick(visible, legacy, tol) if finer else None
+            picked = _legacy_pick(visible, case.legacy, tol) if finer else None
             if picked is None:
                 o.defects.append("multiple_instances")
                 spread = max(float(np.linalg.norm(a.box.center - b.box.center)) for a in visible for b in visible)
@@ -541,7 +563,12 @@ class Grounding(Task):
                         "centre, reproduced for exactly one visible candidate, links the description to a box",
                 "candidate": picked[0].id, "hypothesis": picked[1]}
             visible = [picked[0]]
-        target = visible[0]
+        return visible[0]
+
+    @staticmethod
+    def _measure_box(case: Case, view, target, desc: str, label, diag) -> None:
+        """The target's box in the camera at the asked frame (the measure operator), and the answer."""
+        c, o = case.contract, case.outcome
         try:
             checks = validate_box(target.box)
         except InputError as e:
