@@ -103,6 +103,10 @@ REASONS: dict[str, str] = {
     "duplicate_row": "an exact copy of an earlier legacy row, which is kept and audited once",
     "time_past_video_end": "an asked time lies after the end of the video",
     "unsupported_question": "the question does not match a known contract for the task",
+    "source_damaged": "a source file the row needs fails a check of what it must hold (file, row and field in "
+                      "the evidence)",
+    "source_gap": "the source's samples inside the question's window are further apart than the stated "
+                  "multiple of their sampling interval (max_gap_factor, params/measure.yaml): not interpolated",
     "no_valid_options": "no five candidates meet the answer interface's requirements (separation, physical "
                         "possibility) for this answer under the run's option params",
 }

@@ -67,6 +67,17 @@ class InputError(RestiError, ValueError):
     """Bad input data (a file, row, field or parameter)."""
 
 
+class SourceError(InputError):
+    """A source file fails a check of what it must hold (a timestamp out of order, a field of the
+    wrong type, a non-finite vertex): named by file, row and field. In a run the row that needs it is
+    excluded (``source_damaged``) with the file in its evidence; ``resti measure`` exits 2."""
+
+
+class SourceGapError(SourceError):
+    """The source's samples inside a question's window are further apart than the stated multiple of
+    the track's own sampling interval: the row is excluded (``source_gap``), never interpolated."""
+
+
 class ContractError(RestiError, ValueError):
     """A measurement contract that cannot be evaluated (unknown id, time out of range, ...)."""
 
@@ -96,4 +107,4 @@ class OptionError(RestiError, RuntimeError):
 
 
 __all__ = ["BusyError", "ContractError", "InputError", "InvariantError", "NotebookError", "OptionError",
-           "OutputError", "ReoptionError", "RestiError"]
+           "OutputError", "ReoptionError", "RestiError", "SourceError", "SourceGapError"]

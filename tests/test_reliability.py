@@ -59,28 +59,35 @@ def test_malformed_legacy_rows_are_excluded_with_a_reason(world_with, tmp_path):
         assert rec["verification_evidence"]["field"] == field
 
 
-def test_truncated_sens_is_one_clear_error(miniworld, world_with, tmp_path):
+def test_truncated_sens_excludes_its_rows_by_name(miniworld, world_with, tmp_path):
+    """A truncated .sens is damage: every row of that scene that needs it is excluded
+    (source_damaged) with the file and field in its evidence; the other scenes' rows are audited."""
     rel = sorted((miniworld / "scannet" / "scans").glob("*/*.sens"))[0].relative_to(miniworld)
+    scene = rel.parent.name
     world = world_with(rel)
     sens = world / rel
     os.truncate(sens, sens.stat().st_size // 2)
     params = _params(world, tmp_path / "out")
     for task in ("3D Video Grounding", "Ego-Centric Orientation", "Pose Estimation"):
-        with pytest.raises(InputError) as e:
-            run_task(task, params)
-        assert e.value.file == str(sens) and e.value.field == "num_frames"
+        run = run_task(task, params)
+        mine = [o for o in run.outcomes if o.video.startswith(scene)]
+        assert mine and all(o.verdict == "excluded" and o.reasons == ["source_damaged"] for o in mine), task
+        assert all(o.evidence["source_file"] == str(sens) and o.evidence["source_field"] == "num_frames"
+                   for o in mine)
+        assert any(o.verdict != "excluded" for o in run.outcomes if not o.video.startswith(scene))
     assert not (tmp_path / "out" / "release").exists()
 
 
-def test_waymo_parquet_missing_a_column(miniworld, world_with, tmp_path):
+def test_waymo_parquet_missing_a_column_excludes_its_segment(miniworld, world_with, tmp_path):
     rel = sorted((miniworld / "waymo" / "vehicle_pose").glob("*.parquet"))[0].relative_to(miniworld)
     world = world_with(rel)
     p = world / rel
     t = pq.read_table(p)
     pq.write_table(t.drop(["[VehiclePoseComponent].world_from_vehicle.transform"]), p)
-    with pytest.raises(InputError) as e:
-        run_task("Trajectory Description", _params(world, tmp_path / "out"))
-    assert e.value.file == str(p) and "world_from_vehicle" in e.value.field
+    run = run_task("Trajectory Description", _params(world, tmp_path / "out"))
+    mine = [o for o in run.outcomes if o.video.startswith(rel.stem)]
+    assert mine and all(o.reasons == ["source_damaged"] and o.evidence["source_file"] == str(p)
+                        and "world_from_vehicle" in o.evidence["source_field"] for o in mine)
 
 
 def test_rope_zero_norm_quaternion(miniworld, world_with, tmp_path):

@@ -213,7 +213,8 @@ def test_duplicate_timestamp(tmp_path):
 
 
 def test_vehicle_pose_errors_name_the_file_row_among_other_segments(tmp_path):
-    # file rows 0-2: another segment; rows 3-5: SEG, written out of time order, row 5 repeats row 3's time
+    # file rows 0-2: another segment; rows 3-5: SEG, written out of time order (row 4 goes back in time; a
+    # pose table runs forward, so that is damage named at its row, not something to sort away)
     other = "9999999999_0000_000_0020_000"
     bad = np.eye(4)
     bad[0, 0] = 2.0  # not a rotation
@@ -223,8 +224,16 @@ def test_vehicle_pose_errors_name_the_file_row_among_other_segments(tmp_path):
                              W.VEHICLE_POSE: transform_col([np.eye(4)] * 6)}), p)
     with pytest.raises(InputError) as e:
         W.read_vehicle_pose(p, SEG)
+    assert e.value.field == W.KEY_MICROS and e.value.row == 4
+    # in time order, row 5 repeating row 4's time: named at row 5
+    pq.write_table(pa.table({W.KEY_SEGMENT: [other] * 3 + [SEG] * 3,
+                             W.KEY_MICROS: micros[:3] + [T0 + 100_000, T0 + 200_000, T0 + 200_000],
+                             W.VEHICLE_POSE: transform_col([np.eye(4)] * 6)}), p)
+    with pytest.raises(InputError) as e:
+        W.read_vehicle_pose(p, SEG)
     assert e.value.field == W.KEY_MICROS and e.value.row == 5
-    pq.write_table(pa.table({W.KEY_SEGMENT: [other] * 3 + [SEG] * 3, W.KEY_MICROS: micros[:5] + [T0 + 300_000],
+    pq.write_table(pa.table({W.KEY_SEGMENT: [other] * 3 + [SEG] * 3,
+                             W.KEY_MICROS: micros[:3] + [T0 + 100_000, T0 + 200_000, T0 + 300_000],
                              W.VEHICLE_POSE: transform_col([np.eye(4)] * 4 + [bad, np.eye(4)])}), p)
     with pytest.raises(InputError) as e:
         W.read_vehicle_pose(p, SEG)

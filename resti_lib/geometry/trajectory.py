@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from resti_lib.errors import ContractError, InputError
+from resti_lib.errors import ContractError, InputError, SourceError, SourceGapError
 
 __all__ = [
     "PoseTrack",
@@ -67,6 +67,10 @@ class PoseTrack:
         Computed as "all 16 entries finite"; a given mask is AND-ed with that.
     meta : dict
         Free-form extras from the reader (frame numbers, micros, box sizes ...).
+    max_gap_factor : float, optional
+        Samples inside a question's window further apart than this multiple of the track's median
+        sampling interval are a gap (:meth:`check_gap`); default ``max_gap_factor`` of
+        ``params/measure.yaml``.
     """
 
     times: np.ndarray
@@ -75,8 +79,10 @@ class PoseTrack:
     source: str = ""
     valid: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    max_gap_factor: float | None = None
     _quat: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
     _invalid_cum: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _step: float = field(default=0.0, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.times = np.asarray(self.times, dtype=np.float64).reshape(-1)
@@ -93,13 +99,38 @@ class PoseTrack:
         d = np.diff(self.times)
         if (d <= 0).any():
             i = int(np.argmax(d <= 0)) + 1
-            raise InputError(f"timestamps must be strictly increasing (t[{i - 1}]={self.times[i - 1]!r}, "
-                             f"t[{i}]={self.times[i]!r})", file=self.source or None, row=i, field="times")
+            raise SourceError(f"timestamps must be strictly increasing (t[{i - 1}]={self.times[i - 1]!r}, "
+                              f"t[{i}]={self.times[i]!r})", file=self.source or None, row=i, field="times")
+        if self.max_gap_factor is None:
+            from ..defaults import setting
+
+            self.max_gap_factor = float(setting(None, "max_gap_factor"))
+        self._step = float(np.median(d)) if d.size else 0.0
         finite = np.isfinite(self.T).all(axis=(1, 2))
         self.valid = finite if self.valid is None else (np.asarray(self.valid, bool).reshape(-1) & finite)
 
     def __len__(self) -> int:
         return self.times.shape[0]
+
+    def check_gap(self, t0: float, t1: float) -> None:
+        """Refuse a window ``[t0, t1]`` (an instant when equal) whose samples, with the ones that
+        bracket it, lie further apart than ``max_gap_factor`` times the track's median sampling
+        interval (:class:`~resti_lib.errors.SourceGapError`: a gap is excluded, never interpolated)."""
+        n = len(self)
+        if n < 3:
+            return
+        i0 = max(int(np.searchsorted(self.times, t0, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(self.times, t1, side="left")), n - 1)
+        if i1 <= i0:
+            return
+        d = np.diff(self.times[i0:i1 + 1])
+        step = self._step
+        k = int(np.argmax(d))
+        if d[k] > self.max_gap_factor * step:
+            raise SourceGapError(f"{self.name}: no sample between t={self.times[i0 + k]:.6f} s and "
+                                 f"t={self.times[i0 + k + 1]:.6f} s ({d[k]:.3f} s, {d[k] / step:.1f} times the "
+                                 f"sampling interval {step:.4f} s; max_gap_factor {self.max_gap_factor:g}) inside "
+                                 f"[{t0:.6f}, {t1:.6f}] s", file=self.source or None, row=i0 + k + 1, field="times")
 
     @property
     def positions(self) -> np.ndarray:
@@ -282,6 +313,8 @@ def pose_at(track: PoseTrack, t: float | np.ndarray, rule: str = "linear", tol: 
     i0, i1, alpha, status = _locate(track, t_arr, rule, tol)
     if errors == "raise":
         _raise_status(track, t_arr, i0, i1, status, rule, tol)
+    if t_arr.ndim == 0 and status == _OK:
+        track.check_gap(float(t_arr), float(t_arr))
     T = track.T[i0].copy()
     interp = (alpha > 0.0) & (status == _OK)
     if interp.any():
@@ -345,6 +378,7 @@ def interval_valid(track: PoseTrack, t0: float, t1: float, *, tol: float = DEFAU
         if tt < times[0] - tol or tt > times[-1] + tol:
             raise ContractError(f"{track.name}: t={tt:.6f} s outside the track "
                                 f"[{times[0]:.6f}, {times[-1]:.6f}] s")
+    track.check_gap(t0, t1)
     last = track.last_valid_index
     if last is None:
         raise ContractError(f"{track.name}: no valid pose in the track")

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ContractError, InputError
+from ..errors import ContractError, InputError, SourceError
 from . import boxes, motion, objects, relations, trajectory  # noqa: F401 -- they register the operators
 from .cli import measure_main
 from .registry import (
@@ -145,6 +145,8 @@ def evaluate_contract(contract: dict, params: dict, *, sources=None) -> dict:
             raise ContractError(m.no_value or "the source admits no value")
         ev.update(m.evidence)
         return {"value": _jsonable(m.value), "unit": m.unit, "evidence": _jsonable(ev)}
+    except SourceError:
+        raise  # damaged or gapped source data: resti measure names it and exits 2
     except (ContractError, InputError) as e:
         return {"error": str(e), "evidence": _jsonable(ev)}
     except (ValueError, OSError, KeyError) as e:

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, SourceError
 
 
 def _load_params(path: str | None) -> dict:
@@ -63,7 +63,8 @@ def measure_main(argv: list[str] | None = None) -> int:
     """``resti measure CONTRACT.json --params PARAMS.yaml [--json]``.
 
     Returns the exit code: 0 when every contract evaluated, 1 when any gave an error, 2 when the
-    contract or params file cannot be read.
+    contract or params file cannot be read, or a source file fails its checks (damage, a gap in the
+    window).
     """
     ap = argparse.ArgumentParser(prog="resti measure", description="Evaluate measurement contracts "
                                  "(formats/contract.md) against the source datasets.")
@@ -79,7 +80,11 @@ def measure_main(argv: list[str] | None = None) -> int:
         return 2
     from . import evaluate_contracts
 
-    results = evaluate_contracts(contracts, params)
+    try:
+        results = evaluate_contracts(contracts, params)
+    except SourceError as e:  # a source file fails its checks, or its samples leave a gap in the window
+        print(f"resti measure: {e}", file=sys.stderr)
+        return 2
     listed = results if isinstance(results, list) else [results]
     if a.json:
         print(json.dumps(results, indent=1))

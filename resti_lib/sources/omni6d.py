@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from resti_lib.errors import InputError
+from resti_lib.errors import SourceError
 from resti_lib.geometry.frames import check_rotation, invert_T, make_T, quat_wxyz_to_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 
@@ -107,9 +107,9 @@ def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
     except OSError as e:
-        raise InputError(f"cannot read: {e}", file=path) from None
+        raise SourceError(f"cannot read: {e}", file=path) from None
     except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
+        raise SourceError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
 
 
 def load_frame_meta(path: str | Path):
@@ -127,7 +127,7 @@ def load_frame_meta(path: str | Path):
             return ImageMetaData(**data)
         return _plain_image_meta(data)
     except (TypeError, KeyError, AttributeError, ValueError) as e:
-        raise InputError(f"not a ROPE frame meta: {e}", file=path, field=_missing_field(e)) from None
+        raise SourceError(f"not a ROPE frame meta: {e}", file=path, field=_missing_field(e)) from None
 
 
 def load_object_meta(path: str | Path):
@@ -140,13 +140,25 @@ def load_object_meta(path: str | Path):
         return SimpleNamespace(class_list=data["class_list"],
                                instance_dict={k: _plain(v) for k, v in data["instance_dict"].items()})
     except (TypeError, KeyError, AttributeError, ValueError) as e:
-        raise InputError(f"not an object meta file: {e}", file=path, field=_missing_field(e)) from None
+        raise SourceError(f"not an object meta file: {e}", file=path, field=_missing_field(e)) from None
+
+
+def _numbers(x, n: int, *, file: Path, row: object, field: str) -> np.ndarray:
+    """``n`` finite numbers from a JSON list (a string, a boolean or a missing entry is damage)."""
+    if not isinstance(x, (list, tuple)) or len(x) != n or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in x):
+        raise SourceError(f"must be a list of {n} numbers, got {str(x)[:60]!r}", file=file, row=row, field=field)
+    a = np.asarray(x, dtype=np.float64)
+    if not np.isfinite(a).all():
+        raise SourceError(f"must be {n} finite numbers, got {a.tolist()}", file=file, row=row, field=field)
+    return a
 
 
 def _pose(q, t, *, file: Path, row: object, field: str) -> np.ndarray:
-    t = np.asarray(t, dtype=np.float64)
+    q = _numbers(q, 4, file=file, row=row, field=field)
+    t = _numbers(t, 3, file=file, row=row, field=field.replace("quaternion", "translation"))
     if t.shape != (3,) or not np.isfinite(t).all():
-        raise InputError(f"translation must be 3 finite numbers, got {t.tolist()}", file=file, row=row,
+        raise SourceError(f"translation must be 3 finite numbers, got {t.tolist()}", file=file, row=row,
                          field=field.replace("quaternion", "translation"))
     R = quat_wxyz_to_matrix(q, file=file, row=row, field=field)
     return make_T(R, t)
@@ -247,7 +259,7 @@ class RopeScene:
         self.agree_tol_deg = float(agree_tol_deg)
         self.dir = self.root / "ROPE" / self.scene
         if not self.dir.is_dir():
-            raise InputError("ROPE scene folder not found", file=self.dir, field="sequence")
+            raise SourceError("ROPE scene folder not found", file=self.dir, field="sequence")
         self._meta: dict[int, Any] = {}
         self._memo: dict[tuple, Any] = {}  # derived tracks and boxes, computed once per scene
 
@@ -262,10 +274,10 @@ class RopeScene:
         for p in self.dir.glob("*_meta.json"):
             stem = p.name[: -len("_meta.json")]
             if not stem.isdigit():
-                raise InputError("frame id is not a number", file=p, field="frame")
+                raise SourceError("frame id is not a number", file=p, field="frame")
             out.append(int(stem))
         if not out:
-            raise InputError("no <frame>_meta.json files", file=self.dir, field="frame")
+            raise SourceError("no <frame>_meta.json files", file=self.dir, field="frame")
         return sorted(out)
 
     def meta_path(self, frame: int) -> Path:
@@ -277,7 +289,7 @@ class RopeScene:
         if frame not in self._meta:
             p = self.meta_path(frame)
             if not p.exists():
-                raise InputError(f"no meta for frame {frame}", file=p, row=frame, field="frame")
+                raise SourceError(f"no meta for frame {frame}", file=p, row=frame, field="frame")
             self._meta[frame] = load_frame_meta(p)
         return self._meta[frame]
 
@@ -338,7 +350,7 @@ class RopeScene:
                     pts.append(Tc[:3, 3])
                     K.append([intr["fx"], intr["fy"], intr["cx"], intr["cy"], intr["width"], intr["height"]])
         if not pts:
-            raise InputError("no valid object is annotated: the camera motion cannot be recovered",
+            raise SourceError("no valid object is annotated: the camera motion cannot be recovered",
                              file=self.dir, field="objects")
         P, K = np.array(pts), np.array(K)
         cands = []
@@ -357,7 +369,7 @@ class RopeScene:
         ev = {"check": "valid objects' camera-frame centres: depth > 0 (90 % at least) and projection inside the "
                        "image with the frame intrinsics (half at least)", "candidates": cands}
         if not holding:
-            raise InputError("no camera-axis convention places the annotated objects in front of the camera "
+            raise SourceError("no camera-axis convention places the annotated objects in front of the camera "
                              "and inside the image", file=self.dir, field="objects")
         return max(holding, key=lambda c: c["inside_fraction"])["axes"], ev
 
@@ -455,7 +467,7 @@ class RopeScene:
         T = np.full((n, 4, 4), np.nan)
         first = next((k for k in range(n) if at[k]), None)
         if first is None:
-            raise InputError("no frame shows a static object: the camera motion cannot be recovered",
+            raise SourceError("no frame shows a static object: the camera motion cannot be recovered",
                              file=self.dir, field="objects")
         placed = {oid: Tc.copy() for oid, Tc in at[first].items()}
         grew = True
@@ -668,7 +680,7 @@ class RopeScene:
         for o, Tc, _ in self._objects(frame):
             oid = o.meta.oid
             if oid not in inst:
-                raise InputError(f"object {oid} is not in the object meta", file=self.obj_meta_path,
+                raise SourceError(f"object {oid} is not in the object meta", file=self.obj_meta_path,
                                  row=oid, field="instance_dict")
             check_rotation(Tc[:3, :3], tol=ROTATION_TOL, file=self.meta_path(frame), row=oid,
                            field="quaternion_wxyz")
@@ -698,7 +710,7 @@ class RopeScene:
                     times.append(cam.times[k])
                     break
         if not T:
-            raise InputError(f"object {oid} appears in no frame", file=self.dir, row=oid, field="oid")
+            raise SourceError(f"object {oid} appears in no frame", file=self.dir, row=oid, field="oid")
         track = PoseTrack(np.array(times), np.stack(T), name=f"ROPE {self.scene} object {oid}",
                           source=str(self.dir), meta={"oid": oid, "convention": self.convention[0],
                                                       "static": oid in self.static_objects[0]})

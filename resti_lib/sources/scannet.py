@@ -27,7 +27,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from resti_lib.errors import ContractError, InputError
+from resti_lib.errors import ContractError, InputError, SourceError
 from resti_lib.geometry.boxes import OrientedBox, upright_oriented_box
 from resti_lib.geometry.frames import apply_T, check_rotation, invert_T
 from resti_lib.geometry.trajectory import PoseTrack
@@ -74,7 +74,7 @@ class ScanNetMeta:
     def require_axis_alignment(self) -> np.ndarray:
         """``A = T_ann_from_raw``; raises :class:`InputError` when the scene has none."""
         if self.axis_alignment_or_none is None:
-            raise InputError("scene has no axisAlignment (hidden test split?): the annotation frame "
+            raise SourceError("scene has no axisAlignment (hidden test split?): the annotation frame "
                              "is undefined", file=self.path, field="axisAlignment")
         return self.axis_alignment_or_none
 
@@ -84,7 +84,7 @@ class ScanNetMeta:
         try:
             return kind(float(self.values[key])) if kind is int else kind(self.values[key])
         except ValueError:
-            raise InputError(f"not a number: {self.values[key]!r}", file=self.path, field=key) from None
+            raise SourceError(f"not a number: {self.values[key]!r}", file=self.path, field=key) from None
 
     @property
     def color_intrinsics(self) -> dict | None:
@@ -113,14 +113,14 @@ def read_scene_meta(path: str | Path) -> ScanNetMeta:
     try:
         text = path.read_text()
     except OSError as e:
-        raise InputError(f"cannot read scene meta: {e}", file=path) from None
+        raise SourceError(f"cannot read scene meta: {e}", file=path) from None
     values: dict[str, str] = {}
     A = None
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         if "=" not in line:
-            raise InputError(f"expected 'key = value', got {line!r}", file=path, row=lineno)
+            raise SourceError(f"expected 'key = value', got {line!r}", file=path, row=lineno)
         key, _, val = line.partition("=")
         key, val = key.strip(), val.strip()
         values[key] = val
@@ -128,15 +128,15 @@ def read_scene_meta(path: str | Path) -> ScanNetMeta:
             try:
                 nums = np.array([float(x) for x in val.split()], dtype=np.float64)
             except ValueError:
-                raise InputError(f"axisAlignment must be 16 numbers, got {val!r}", file=path,
+                raise SourceError(f"axisAlignment must be 16 numbers, got {val!r}", file=path,
                                  row=lineno, field="axisAlignment") from None
             if nums.size != 16 or not np.isfinite(nums).all():
-                raise InputError(f"axisAlignment must be 16 finite numbers, got {nums.size}",
+                raise SourceError(f"axisAlignment must be 16 finite numbers, got {nums.size}",
                                  file=path, row=lineno, field="axisAlignment")
             A = nums.reshape(4, 4)
             check_rotation(A[:3, :3], tol=ROTATION_TOL, file=path, row=lineno, field="axisAlignment")
             if not np.allclose(A[3], [0, 0, 0, 1]):
-                raise InputError("axisAlignment last row must be [0 0 0 1]", file=path, row=lineno,
+                raise SourceError("axisAlignment last row must be [0 0 0 1]", file=path, row=lineno,
                                  field="axisAlignment")
     return ScanNetMeta(path=path, values=values, axis_alignment_or_none=A)
 
@@ -176,7 +176,7 @@ class SensHeader:
 def _read_exact(f: BinaryIO, n: int, path: Path, field: str, row: object = None) -> bytes:
     b = f.read(n)
     if len(b) != n:
-        raise InputError(f"file truncated: needed {n} bytes, got {len(b)}", file=path, row=row, field=field)
+        raise SourceError(f"file truncated: needed {n} bytes, got {len(b)}", file=path, row=row, field=field)
     return b
 
 
@@ -185,10 +185,10 @@ def read_sens_header(f: BinaryIO, path: str | Path) -> SensHeader:
     path = Path(path)
     (version,) = struct.unpack("<I", _read_exact(f, 4, path, "version"))
     if version != 4:
-        raise InputError(f"unsupported .sens version {version} (expected 4)", file=path, field="version")
+        raise SourceError(f"unsupported .sens version {version} (expected 4)", file=path, field="version")
     (strlen,) = struct.unpack("<Q", _read_exact(f, 8, path, "sensor_name_length"))
     if strlen > 1 << 16:
-        raise InputError(f"implausible sensor name length {strlen}", file=path, field="sensor_name_length")
+        raise SourceError(f"implausible sensor name length {strlen}", file=path, field="sensor_name_length")
     name = _read_exact(f, strlen, path, "sensor_name").decode("utf-8", errors="replace")
     mats = {}
     for key in ("intrinsic_color", "extrinsic_color", "intrinsic_depth", "extrinsic_depth"):
@@ -237,7 +237,7 @@ def read_sens_poses(path: str | Path, *, rotation_tol: float = ROTATION_TOL) -> 
     try:
         f = open(path, "rb", buffering=0)  # noqa: SIM115 -- closed by the with-block below
     except OSError as e:
-        raise InputError(f"cannot open .sens: {e}", file=path) from None
+        raise SourceError(f"cannot open .sens: {e}", file=path) from None
     with f:
         size = os.fstat(f.fileno()).st_size
         header = read_sens_header(f, path)
@@ -245,7 +245,7 @@ def read_sens_poses(path: str | Path, *, rotation_tol: float = ROTATION_TOL) -> 
         # a frame needs at least its 96-byte header: reject absurd counts before allocating
         max_frames = (size - header.frames_offset) // _FRAME_HEAD.size
         if n > max_frames + 1:
-            raise InputError(f"num_frames = {n} but the file can hold at most {max_frames} frame headers "
+            raise SourceError(f"num_frames = {n} but the file can hold at most {max_frames} frame headers "
                              "(truncated or corrupt)", file=path, field="num_frames")
         heads = bytearray()
         pos = header.frames_offset
@@ -260,7 +260,7 @@ def read_sens_poses(path: str | Path, *, rotation_tol: float = ROTATION_TOL) -> 
             pos += 96 + color_size + depth_size
             if pos > size:
                 field = "color_data" if pos - depth_size > size else "depth_data"
-                raise InputError(f"file truncated: frame payload runs past the end ({pos} > {size} bytes)",
+                raise SourceError(f"file truncated: frame payload runs past the end ({pos} > {size} bytes)",
                                  file=path, row=i, field=field)
             seek(pos)
     rec = np.frombuffer(bytes(heads), dtype=_FRAME_DTYPE, count=n)
@@ -272,14 +272,14 @@ def read_sens_poses(path: str | Path, *, rotation_tol: float = ROTATION_TOL) -> 
         try:
             check_rotation(T[valid, :3, :3], tol=rotation_tol, file=path, field="camera_to_world")
         except InputError as e:
-            raise InputError(e.message, file=path, row=int(idx[e.row]) if isinstance(e.row, int) else None,
+            raise SourceError(e.message, file=path, row=int(idx[e.row]) if isinstance(e.row, int) else None,
                              field="camera_to_world") from None
     return SensPoses(path, header, T, ts[:, 0].copy(), ts[:, 1].copy(), valid)
 
 
 def _frame_truncation(path: Path, frame: int, got: bytes):
     field = next(name for name, end in _FRAME_FIELDS if len(got) < end)
-    raise InputError(f"file truncated inside frame {frame} header ({len(got)} of 96 bytes)",
+    raise SourceError(f"file truncated inside frame {frame} header ({len(got)} of 96 bytes)",
                      file=path, row=frame, field=field)
 
 
@@ -298,14 +298,14 @@ def read_pose_txt(path: str | Path) -> np.ndarray:
     try:
         rows = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
     except OSError as e:
-        raise InputError(f"cannot read pose: {e}", file=path, field="pose") from None
+        raise SourceError(f"cannot read pose: {e}", file=path, field="pose") from None
     if len(rows) != 4 or any(len(r) != 4 for r in rows):
-        raise InputError(f"pose must be 4 lines of 4 numbers, got {[len(r) for r in rows]}",
+        raise SourceError(f"pose must be 4 lines of 4 numbers, got {[len(r) for r in rows]}",
                          file=path, field="pose")
     try:
         return np.array([[float(x) for x in r] for r in rows], dtype=np.float64)
     except ValueError as e:
-        raise InputError(f"pose has a non-number: {e}", file=path, field="pose") from None
+        raise SourceError(f"pose has a non-number: {e}", file=path, field="pose") from None
 
 
 def read_pose_dir(pose_dir: str | Path, *, rotation_tol: float = ROTATION_TOL
@@ -323,9 +323,9 @@ def read_pose_dir(pose_dir: str | Path, *, rotation_tol: float = ROTATION_TOL
         try:
             files.append((int(p.stem), p))
         except ValueError:
-            raise InputError("pose file name is not a frame number", file=p, field="frame") from None
+            raise SourceError("pose file name is not a frame number", file=p, field="frame") from None
     if not files:
-        raise InputError("no pose/<frame>.txt files", file=pose_dir, field="pose")
+        raise SourceError("no pose/<frame>.txt files", file=pose_dir, field="pose")
     files.sort()
     frames = np.array([k for k, _ in files], dtype=np.int64)
     T = np.stack([read_pose_txt(p) for _, p in files])
@@ -363,7 +363,7 @@ class ScanNetInstance:
 
     def _A(self) -> np.ndarray:
         if self.axis_alignment is None:
-            raise InputError(f"instance {self.object_id} ({self.label}): the scene has no axisAlignment, "
+            raise SourceError(f"instance {self.object_id} ({self.label}): the scene has no axisAlignment, "
                              "annotation-frame boxes are undefined", file=self.source.get("meta"),
                              row=self.object_id, field="axisAlignment")
         return self.axis_alignment
@@ -421,17 +421,21 @@ def read_instances(scene_dir: str | Path, scene: str, axis_alignment: np.ndarray
     agg = _read_json(agg_path)
     segs = _read_json(segs_path)
     if "segIndices" not in segs:
-        raise InputError("missing key", file=segs_path, field="segIndices")
+        raise SourceError("missing key", file=segs_path, field="segIndices")
     seg_idx = np.asarray(segs["segIndices"], dtype=np.int64)
     if "segGroups" not in agg:
-        raise InputError("missing key", file=agg_path, field="segGroups")
+        raise SourceError("missing key", file=agg_path, field="segGroups")
     try:
         mesh = trimesh.load(ply_path, file_type="ply", process=False)
     except Exception as e:  # noqa: BLE001 -- trimesh raises many types on bad files
-        raise InputError(f"cannot load mesh: {e}", file=ply_path, field="vertex") from None
+        raise SourceError(f"cannot load mesh: {e}", file=ply_path, field="vertex") from None
     V = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(V).all(axis=1)) if V.size else np.zeros(0, int)
+    if bad.size:
+        raise SourceError(f"{bad.size} mesh vertices are not finite (first: vertex {int(bad[0])})", file=ply_path,
+                          row=int(bad[0]), field="vertex")
     if V.shape[0] != seg_idx.shape[0]:
-        raise InputError(f"mesh has {V.shape[0]} vertices but segIndices has {seg_idx.shape[0]}",
+        raise SourceError(f"mesh has {V.shape[0]} vertices but segIndices has {seg_idx.shape[0]}",
                          file=segs_path, field="segIndices")
     out: dict[int, ScanNetInstance] = {}
     src = {"aggregation": str(agg_path), "segs": str(segs_path), "ply": str(ply_path),
@@ -439,13 +443,22 @@ def read_instances(scene_dir: str | Path, scene: str, axis_alignment: np.ndarray
     for k, g in enumerate(agg["segGroups"]):
         for key in ("objectId", "label", "segments"):
             if key not in g:
-                raise InputError("segGroup lacks a key", file=agg_path, row=k, field=key)
-        oid = int(g["objectId"])
+                raise SourceError("segGroup lacks a key", file=agg_path, row=k, field=key)
+        if not isinstance(g["objectId"], int) or isinstance(g["objectId"], bool):
+            raise SourceError(f"objectId must be an integer, got {g['objectId']!r}", file=agg_path, row=k,
+                              field="objectId")
+        if not isinstance(g["segments"], list) or not all(isinstance(s, int) and not isinstance(s, bool)
+                                                             for s in g["segments"]):
+            raise SourceError(f"segments must be a list of integers, got {str(g['segments'])[:60]!r}", file=agg_path,
+                              row=k, field="segments")
+        if not isinstance(g["label"], str):
+            raise SourceError(f"label must be text, got {g['label']!r}", file=agg_path, row=k, field="label")
+        oid = g["objectId"]
         if oid in out:
-            raise InputError(f"duplicate objectId {oid}", file=agg_path, row=k, field="objectId")
+            raise SourceError(f"duplicate objectId {oid}", file=agg_path, row=k, field="objectId")
         idx = np.flatnonzero(np.isin(seg_idx, np.asarray(g["segments"], dtype=np.int64)))
         if idx.size == 0:
-            raise InputError(f"instance {oid} ({g['label']}) selects no mesh vertex", file=agg_path,
+            raise SourceError(f"instance {oid} ({g['label']}) selects no mesh vertex", file=agg_path,
                              row=k, field="segments")
         out[oid] = ScanNetInstance(oid, int(g.get("id", oid)), str(g["label"]), idx, V[idx],
                                    axis_alignment, dict(src))
@@ -457,9 +470,9 @@ def _read_json(path: Path) -> dict:
         with open(path) as f:
             return json.load(f)
     except OSError as e:
-        raise InputError(f"cannot read: {e}", file=path) from None
+        raise SourceError(f"cannot read: {e}", file=path) from None
     except json.JSONDecodeError as e:
-        raise InputError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
+        raise SourceError(f"invalid JSON: {e.msg}", file=path, row=e.lineno) from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -492,7 +505,7 @@ class ScanNetScene:
         self.pose_source = pose_source
         self.rotation_tol = float(rotation_tol)
         if not self.dir.is_dir():
-            raise InputError("scene folder not found", file=self.dir, field="sequence")
+            raise SourceError("scene folder not found", file=self.dir, field="sequence")
 
     # -- files
     @property
@@ -532,7 +545,7 @@ class ScanNetScene:
             K = h.intrinsic_color
             return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
                     "width": h.color_width, "height": h.color_height}
-        raise InputError("no colour intrinsics (fx_color ...) in scene meta and no .sens",
+        raise SourceError("no colour intrinsics (fx_color ...) in scene meta and no .sens",
                          file=self.meta_path, field="fx_color")
 
     @cached_property
@@ -544,7 +557,7 @@ class ScanNetScene:
         if self.pose_source in ("auto", "pose_dir") and self.pose_dir.is_dir():
             frames, T, files = read_pose_dir(self.pose_dir, rotation_tol=self.rotation_tol)
             return frames, T, str(self.pose_dir), [str(p) for p in files]
-        raise InputError("no camera poses: neither <scene>.sens nor pose/ found", file=self.dir,
+        raise SourceError("no camera poses: neither <scene>.sens nor pose/ found", file=self.dir,
                          field="pose")
 
     def camera_track(self) -> PoseTrack:

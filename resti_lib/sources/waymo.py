@@ -29,7 +29,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from resti_lib.errors import InputError
+from resti_lib.errors import InputError, SourceError
 from resti_lib.geometry.frames import T_WAYMO_CAM_FROM_CV_CAM, check_rotation, make_T, yaw_matrix
 from resti_lib.geometry.trajectory import PoseTrack
 
@@ -121,13 +121,13 @@ def camera_numbers(table: pa.Table, path: str | Path, column: str = KEY_CAMERA) 
         arr = arr.cast(arr.type.value_type)
     if arr.null_count:
         i = int(np.flatnonzero(np.asarray(arr.is_null().to_numpy(zero_copy_only=False)))[0])
-        raise InputError("camera name is missing (null)", file=path, row=i, field=column)
+        raise SourceError("camera name is missing (null)", file=path, row=i, field=column)
     if pa.types.is_integer(arr.type):
         out = np.asarray(arr.to_numpy(zero_copy_only=False)).astype(np.int64)
         bad = ~np.isin(out, list(CAMERA_NAMES))
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"camera name {int(out[i])} is not a camera (1-5: "
+            raise SourceError(f"camera name {int(out[i])} is not a camera (1-5: "
                              f"{', '.join(CAMERA_NAMES.values())})", file=path, row=i, field=column)
         return out
     if pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type):
@@ -140,11 +140,11 @@ def camera_numbers(table: pa.Table, path: str | Path, column: str = KEY_CAMERA) 
             n = int(key) if key.isdigit() else names.get(key)
             if n not in CAMERA_NAMES:
                 i = int(np.argmax(inv == j))
-                raise InputError(f"camera name {u!r} is not a camera ({', '.join(CAMERA_NAMES.values())} or 1-5)",
+                raise SourceError(f"camera name {u!r} is not a camera ({', '.join(CAMERA_NAMES.values())} or 1-5)",
                                  file=path, row=i, field=column)
             nums.append(n)
         return np.asarray(nums, dtype=np.int64)[inv.reshape(-1)]
-    raise InputError(f"camera name column has type {arr.type}: expected an integer (int8) or a name (string)",
+    raise SourceError(f"camera name column has type {arr.type}: expected an integer (int8) or a name (string)",
                      file=path, field=column)
 
 
@@ -152,14 +152,14 @@ def read_columns(path: str | Path, required: list[str], optional: list[str] = ()
     """Read only ``required`` (+ present ``optional``) columns; InputError naming a missing one."""
     path = Path(path)
     if not path.exists():
-        raise InputError("parquet file not found", file=path)
+        raise SourceError("parquet file not found", file=path)
     try:
         names = set(pq.read_schema(path).names)
     except (pa.ArrowException, OSError) as e:  # not a parquet file
-        raise InputError(f"not a readable parquet file: {e}", file=path) from None
+        raise SourceError(f"not a readable parquet file: {e}", file=path) from None
     for c in required:
         if c not in names:
-            raise InputError("missing column", file=path, field=c)
+            raise SourceError("missing column", file=path, field=c)
     cols = list(required) + [c for c in optional if c in names]
     return pq.read_table(path, columns=cols)
 
@@ -170,11 +170,11 @@ def _transforms(table: pa.Table, column: str, path: Path) -> np.ndarray:
     n = len(arr)
     if not (pa.types.is_list(arr.type) or pa.types.is_fixed_size_list(arr.type)
             or pa.types.is_large_list(arr.type)):
-        raise InputError(f"expected a list of 16 numbers, got {arr.type}", file=path, field=column)
+        raise SourceError(f"expected a list of 16 numbers, got {arr.type}", file=path, field=column)
     out = np.full((n, 16), np.nan)
     if pa.types.is_fixed_size_list(arr.type):
         if arr.type.list_size != 16:
-            raise InputError(f"expected 16 numbers per row, got {arr.type.list_size}", file=path, field=column)
+            raise SourceError(f"expected 16 numbers per row, got {arr.type.list_size}", file=path, field=column)
         vals = np.asarray(arr.values.to_numpy(zero_copy_only=False), dtype=np.float64).reshape(n, 16)
         ok = ~np.asarray(arr.is_null().to_numpy(zero_copy_only=False), dtype=bool)
         out[ok] = vals[ok]
@@ -182,7 +182,7 @@ def _transforms(table: pa.Table, column: str, path: Path) -> np.ndarray:
         lens = np.asarray(arr.value_lengths().fill_null(16).to_numpy(zero_copy_only=False))
         if (lens != 16).any():
             i = int(np.argmax(lens != 16))
-            raise InputError(f"expected 16 numbers, got {lens[i]}", file=path, row=i, field=column)
+            raise SourceError(f"expected 16 numbers, got {lens[i]}", file=path, row=i, field=column)
         ok = ~np.asarray(arr.is_null().to_numpy(zero_copy_only=False), dtype=bool)
         flat = np.asarray(arr.flatten().to_numpy(zero_copy_only=False), dtype=np.float64)
         out[ok] = flat.reshape(-1, 16)
@@ -195,7 +195,7 @@ def _segment_rows(table: pa.Table, segment: str | None, path: Path) -> np.ndarra
         return np.ones(len(names), bool)
     keep = names == segment
     if not keep.any():
-        raise InputError(f"no row of segment {segment!r}", file=path, field=KEY_SEGMENT)
+        raise SourceError(f"no row of segment {segment!r}", file=path, field=KEY_SEGMENT)
     return keep
 
 
@@ -217,12 +217,17 @@ def read_vehicle_pose(path: str | Path, segment: str | None = None, *, rotation_
     keep = _segment_rows(tab, segment, path)
     micros = _int_col(tab, KEY_MICROS).astype(np.int64)[keep]
     T = _transforms(tab, VEHICLE_POSE, path)[keep]
+    back = np.flatnonzero(np.diff(micros) <= 0)
+    if back.size:  # a pose table runs forward in time: a reversed or repeated timestamp is damage
+        k = int(back[0]) + 1
+        raise SourceError(f"frame timestamp {micros[k]} does not follow {micros[k - 1]} (the pose table must be "
+                          "strictly increasing in time)", file=path, row=int(np.flatnonzero(keep)[k]), field=KEY_MICROS)
     order = np.argsort(micros, kind="stable")
     micros, T = micros[order], T[order]
     file_rows = np.flatnonzero(keep)[order]  # row in the file of each sorted frame
     dup = np.flatnonzero(np.diff(micros) == 0)
     if dup.size:
-        raise InputError(f"duplicate frame timestamp {micros[dup[0]]}", file=path, row=int(file_rows[dup[0] + 1]),
+        raise SourceError(f"duplicate frame timestamp {micros[dup[0]]}", file=path, row=int(file_rows[dup[0] + 1]),
                          field=KEY_MICROS)
     fin = np.isfinite(T).all(axis=(1, 2))
     if fin.any():
@@ -230,7 +235,7 @@ def read_vehicle_pose(path: str | Path, segment: str | None = None, *, rotation_
         try:
             check_rotation(T[fin, :3, :3], tol=rotation_tol, field=VEHICLE_POSE)
         except InputError as e:
-            raise InputError(e.message, file=path, row=int(file_rows[idx[e.row]]), field=VEHICLE_POSE) from None
+            raise SourceError(e.message, file=path, row=int(file_rows[idx[e.row]]), field=VEHICLE_POSE) from None
     return micros, T
 
 
@@ -254,9 +259,9 @@ def read_camera_calibration(path: str | Path, segment: str | None = None) -> dic
     for i in np.flatnonzero(keep):
         cam = int(cams[i])
         if cam in out:
-            raise InputError(f"camera {cam} calibrated twice", file=path, row=int(i), field=KEY_CAMERA)
+            raise SourceError(f"camera {cam} calibrated twice", file=path, row=int(i), field=KEY_CAMERA)
         if not np.isfinite(E[i]).all():
-            raise InputError("non-finite extrinsic", file=path, row=int(i), field=CAL_EXTRINSIC)
+            raise SourceError("non-finite extrinsic", file=path, row=int(i), field=CAL_EXTRINSIC)
         check_rotation(E[i, :3, :3], tol=ROTATION_TOL, file=path, row=int(i), field=CAL_EXTRINSIC)
         out[cam] = {"extrinsic": E[i], "intrinsics": {k: float(v[i]) for k, v in cols.items()},
                     "width": int(W[i]), "height": int(H[i]), "row": int(i)}
@@ -277,7 +282,7 @@ def read_camera_image_poses(path: str | Path, camera: int | str, segment: str | 
     tab = read_columns(path, [KEY_SEGMENT, KEY_MICROS, KEY_CAMERA, IMG_POSE, IMG_POSE_TIMESTAMP])
     keep = _segment_rows(tab, segment, path) & (camera_numbers(tab, path) == cam)
     if not keep.any():
-        raise InputError(f"no image rows for camera {cam}", file=path, field=KEY_CAMERA)
+        raise SourceError(f"no image rows for camera {cam}", file=path, field=KEY_CAMERA)
     micros = _int_col(tab, KEY_MICROS).astype(np.int64)[keep]
     ts = np.asarray(tab.column(IMG_POSE_TIMESTAMP).to_numpy(zero_copy_only=False), dtype=np.float64)[keep]
     T = _transforms(tab, IMG_POSE, path)[keep]
@@ -322,8 +327,16 @@ def read_lidar_boxes(path: str | Path, segment: str | None = None):
     dup = df.duplicated(["id", "micros"])
     if dup.any():
         r = df[dup].iloc[0]
-        raise InputError(f"object {r['id']} twice at {r['micros']}", file=path, row=int(r["source_row"]),
-                         field=KEY_OBJECT)
+        raise SourceError(f"object {r['id']} twice at {r['micros']}", file=path, row=int(r["source_row"]),
+                          field=KEY_OBJECT)
+    # each track runs forward in time in the file (rows of one object, in file order)
+    prev = df.groupby("id", sort=False)["micros"].shift()
+    back = df.index[(df["micros"] <= prev).to_numpy()]
+    if len(back):
+        r = df.loc[back[0]]
+        raise SourceError(f"object {r['id']}: frame timestamp {r['micros']} does not follow the track's previous "
+                          "one (a track must be strictly increasing in time)", file=path, row=int(r["source_row"]),
+                          field=KEY_MICROS)
     return df.sort_values(["id", "micros"], kind="stable").reset_index(drop=True)
 
 
@@ -430,7 +443,7 @@ class WaymoSegment:
         miss = vm[kc] != micros
         if miss.any():
             i = int(np.argmax(miss))
-            raise InputError(f"box frame {int(micros[i])} has no vehicle_pose frame",
+            raise SourceError(f"box frame {int(micros[i])} has no vehicle_pose frame",
                              file=self.path("lidar_box"), row=int(rows[i]), field=KEY_MICROS)
         return W[kc]
 

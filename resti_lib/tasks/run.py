@@ -9,7 +9,8 @@ duplicate rows and rows asking a time past the end of the video (:func:`prescree
    the question-layer defects of its missing parts follow);
 2. parses the legacy Answer Detail once (:func:`resti_lib.adjudicate.read_legacy`);
 3. reconstructs the value (``Task.reconstruct``; an :class:`~resti_lib.tasks.base.Exclude` ends the
-   row excluded with its reasons and evidence);
+   row excluded with its reasons and evidence, and so does damaged or gapped source data,
+   :class:`~resti_lib.errors.SourceError`: ``source_damaged`` / ``source_gap`` with file, row and field);
 4. diagnoses the legacy value (``Task.diagnose_all``) and adjudicates the verdict;
 5. rewrites the question (``Task.rewrite``), completes the contract (σ and D of the repaired
    row, what the legacy row stated kept under ``legacy``) and the option spec;
@@ -29,7 +30,7 @@ import pandas as pd
 
 from .. import paths
 from ..adjudicate import answer_layer_defects, group_shortcuts, read_legacy
-from ..errors import ContractError, InputError
+from ..errors import ContractError, InputError, SourceError, SourceGapError
 from ..io.benchmark import canonical_row_text, load_legacy
 from ..options.spec import Interface, load_option_params
 from ..sources.context import SourceContext
@@ -190,6 +191,11 @@ def audit_rows(task: Task, rows: pd.DataFrame, ctx: SourceContext, params: dict)
         except Exclude as e:
             o.contract = c.to_dict()
             e.apply(o)
+            continue
+        except SourceError as e:  # damaged or gapped source data: named, never measured
+            o.contract = c.to_dict()
+            o.exclude("source_gap" if isinstance(e, SourceGapError) else "source_damaged", source_file=e.file,
+                      source_row=e.row, source_field=e.field, problem=e.message)
             continue
         cases.append(case)
     task.diagnose_all(cases)
