@@ -203,3 +203,43 @@ def test_intact_v5_still_passes_every_check(resti_v5_dir):
     assert set(_failing(v)) == {"separation", "plausible_given_question"}
     skipped = {k for k, c in v["checks"].items() if c["status"] == "skipped"}
     assert skipped == {"legacy_coverage"}
+
+
+def test_row_files_that_disagree_fail_verify_and_reoption(tmp_path):
+    """resti.parquet with one row removed and one Answer and Answer Detail changed, its digest re-signed:
+    verify compares the two row files row for row and fails; reoption refuses the input by name."""
+    import hashlib
+
+    from resti_lib.errors import InputError
+    from resti_lib.io.benchmark import rows_to_parquet_bytes
+    from resti_lib.io.files import read_jsonl
+    from resti_lib.release.reoption import reoption_release
+    from resti_lib.release.verify import verify_path
+    from tests.helpers import seal_release
+    from tests.helpers import write_release as write_rows
+    from tests.test_reoption import _tiny_rows
+
+    folder = seal_release(write_rows(_tiny_rows(), [], tmp_path / "rel"))
+    rows = read_jsonl(folder / "resti.jsonl")  # the rows as shipped
+    bad = [dict(r) for r in rows[1:]]
+    first = bad[0]
+    other = next(k for k in first["Candidates"] if k != first["Answer"])
+    first["Answer"], first["Answer Detail"] = other, first["Candidates"][other]
+    (folder / "resti.parquet").write_bytes(rows_to_parquet_bytes(bad))
+    sums = (folder / "SHA256SUMS").read_text()
+    sums += f"{hashlib.sha256((folder / 'resti.parquet').read_bytes()).hexdigest()}  resti.parquet\n"
+    (folder / "SHA256SUMS").write_text(sums)  # re-signed: the digests alone see nothing
+    v = verify_path(folder)
+    assert v["checks"]["sha256"]["status"] == "pass"
+    c = v["checks"]["row_files_agree"]
+    assert c["status"] == "fail" and not v["passed"]
+    assert "count" in c["failing"] and any("Answer" in m for m in c["messages"].values())
+    with pytest.raises(InputError) as e:
+        reoption_release(folder, tmp_path / "out", seed=0)
+    assert e.value.field == "row_files_agree" and not (tmp_path / "out").exists()
+    # the same release with matching files passes the check
+    (folder / "resti.parquet").write_bytes(rows_to_parquet_bytes(rows))
+    sums = "".join(f"{hashlib.sha256((folder / n).read_bytes()).hexdigest()}  {n}\n"
+                   for n in ("resti.jsonl", "resti.parquet"))
+    (folder / "SHA256SUMS").write_text(sums)
+    assert verify_path(folder)["checks"]["row_files_agree"]["status"] == "pass"

@@ -381,6 +381,11 @@ def _read_meta(meta_file: Path, strict: bool) -> tuple[dict | None, str | None]:
     return meta, None
 
 
+def read_release_rows(path: Path) -> list[dict]:
+    """The accepted rows of one row file (``.jsonl`` or ``.parquet``), Candidates as mappings."""
+    return _accepted_records(Path(path), strict=False)
+
+
 def _accepted_records(acc: Path, strict: bool) -> list[dict]:
     if acc.suffix == ".parquet":
         records = read_parquet_file(acc).to_dict("records")

@@ -237,6 +237,45 @@ def _check_non_empty(rel: Release) -> dict:
     return _status([])
 
 
+def _canonical(row: dict) -> str:
+    """A row as comparable text (numbers as JSON numbers, Candidates as a mapping)."""
+    def plain(v):
+        if hasattr(v, "item") and not isinstance(v, (str, bytes)):
+            v = v.item()
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
+
+    return json.dumps(plain(row), sort_keys=True, ensure_ascii=False)
+
+
+def _check_row_files_agree(rel: Release) -> dict:
+    """``resti.jsonl`` and ``resti.parquet``, when both ship, hold the same rows in the same order."""
+    from ..io.benchmark import read_release_rows
+
+    root = rel.root
+    if root is None or not (root / "resti.jsonl").is_file() or not (root / "resti.parquet").is_file():
+        return _status([], skipped="one row file (resti.jsonl or resti.parquet) only")
+    try:
+        a = read_release_rows(root / "resti.jsonl")
+        b = read_release_rows(root / "resti.parquet")
+    except InputError as e:
+        return _status(["row_files"], messages={"row_files": e.one_line()})
+    failing, msgs = [], {}
+    if len(a) != len(b):
+        failing.append("count")
+        msgs["count"] = f"resti.jsonl has {len(a)} rows, resti.parquet {len(b)}"
+    for i, (x, y) in enumerate(zip(a, b)):
+        if _canonical(x) != _canonical(y):
+            rid = x.get("ReSTI ID") or y.get("ReSTI ID") or i
+            diff = sorted(k for k in set(x) | set(y) if _canonical({k: x.get(k)}) != _canonical({k: y.get(k)}))
+            failing.append(str(rid))
+            msgs[str(rid)] = f"row {i} differs between resti.jsonl and resti.parquet in {', '.join(diff)}"
+    return _status(failing, messages=msgs)
+
+
 def _ids(values) -> list[str]:
     return [v for v in values if isinstance(v, str)]
 
@@ -280,7 +319,8 @@ def integrity_checks(rel: Release) -> dict:
     """The release-level checks that detect damage to a release as a whole (counts against
     ``release.json``, digests, an empty release, duplicated ids)."""
     return {"release_json": _check_release_json(rel, summarize(rel)), "sha256": _check_sha256(rel),
-            "non_empty": _check_non_empty(rel), "unique_ids": _check_unique(rel)}
+            "row_files_agree": _check_row_files_agree(rel), "non_empty": _check_non_empty(rel),
+            "unique_ids": _check_unique(rel)}
 
 
 def release_interface(rel: Release, *, options: dict | None = None):
@@ -315,6 +355,7 @@ def verify_release(rel: Release, *, legacy_keys: list[str] | None = None, iface=
         schema_fail.setdefault(p.check, {})[_hashable(p.row)] = f"{p.field}: {p.message}"
     checks["release_json"] = _check_release_json(rel, summary)
     checks["sha256"] = _check_sha256(rel)
+    checks["row_files_agree"] = _check_row_files_agree(rel)
     checks["non_empty"] = _check_non_empty(rel)
     checks["unique_ids"] = _check_unique(rel)
     checks["accepted_excluded_disjoint"] = _check_disjoint(rel)
