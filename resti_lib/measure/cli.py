@@ -7,25 +7,24 @@ import json
 import sys
 from pathlib import Path
 
+from .. import paths
 from ..errors import InputError, SourceError
+from ..io.params import read_params
 
 
 def _load_params(path: str | None) -> dict:
+    """The params of ``resti measure``: the shared keys, the operator settings, and any task's params
+    (``resti measure --params params/<task>.yaml``), checked against their defaults."""
     if not path:
         return {}
-    import yaml
+    from ..defaults import check_params, load
 
-    p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as e:
-        raise InputError(f"cannot read params: {e}", file=p) from None
-    except yaml.YAMLError as e:
-        raise InputError(f"invalid YAML: {e}", file=p) from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise InputError("params must be a mapping", file=p)
+    data = read_params(Path(path))
+    schema: dict = {**{k: v for k, v in load("default").items() if k != "stages"}, **load("measure")}
+    for f in sorted(paths.PARAMS.glob("*.yaml")):
+        if f.stem not in ("default", "measure", "options", "real.example") and not f.stem.startswith("."):
+            schema = {**load(f.stem), **schema}
+    check_params(data, schema, file=Path(path), what="measure params")
     return data
 
 

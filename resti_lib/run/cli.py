@@ -120,6 +120,10 @@ def _cmd_reoption(a) -> int:
     from .notebooks import load_params
 
     params = load_params(a.params) if a.params else {}
+    if a.params:
+        from ..defaults import check_params, load
+
+        check_params(params, load("reoption"), file=a.params, what="reoption params")
     seed = a.seed if a.seed is not None else params.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise InputError(f"seed {seed!r} is not an integer", file=a.params, field="seed")

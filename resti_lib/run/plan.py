@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import paths
+from ..defaults import check_params, load
 from ..errors import InputError
 from .notebooks import load_params, notebook_parameters
 
@@ -40,6 +41,9 @@ def main_config(params_file=None) -> dict:
     stages (checked first: :func:`check_stages`)."""
     params_file = params_file or paths.PARAMS / "default.yaml"
     cfg = load_params(params_file)
+    schema = {k: v for k, v in load("default").items() if k != "stages"}
+    check_params({k: v for k, v in cfg.items() if k != "stages"}, schema, file=paths.resolve(params_file),
+                 what="main params")
     check_stages(cfg, params_file)
     listed = cfg.get("stages") or []
     if isinstance(listed, list):
@@ -71,7 +75,23 @@ def check_stages(cfg: dict, params_file) -> None:
             if not isinstance(st["params"], str):
                 raise InputError(f"params {st['params']!r} is not a path", file=where, row=f"stage {i}",
                                  field="params")
-            load_params(st["params"])
+            own = load_params(st["params"])
+            check_params(own, declared_defaults(paths.NOTEBOOKS / f"{name}.ipynb"), file=paths.resolve(st["params"]),
+                         what=f"params of stage {name}")
+
+
+def declared_defaults(nb: Path) -> dict:
+    """The parameters a notebook declares, with their default values (its ``parameters`` cell, which
+    carries the YAML defaults): the schema of that stage's params."""
+    import ast
+
+    out = {}
+    for name, d in notebook_parameters(nb).items():
+        try:
+            out[name] = ast.literal_eval(d["default"])
+        except (ValueError, SyntaxError):
+            out[name] = None
+    return out
 
 
 def notebook_of(stage: dict) -> Path:

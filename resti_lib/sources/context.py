@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import paths
+from ..defaults import load
 from ..errors import InputError
 from .mapping import VideoSource, load_mapping_table, map_video
 
@@ -54,9 +55,15 @@ class SourceContext:
 
         vm = params.get("video_map")
         table = load_mapping_table(paths.resolve(vm)) if vm else None
+        def fps(key):  # the run's value, else params/default.yaml's; never a silent substitute for 0
+            v = params.get(key)
+            v = load("default")[key] if v is None else v
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                raise InputError(f"{v!r} is not a frame rate above 0", field=key)
+            return float(v)
+
         return cls(scannet_root=p("scannet_root"), waymo_root=p("waymo_root"), omni6d_root=p("omni6d_root"),
-                   scannet_fps=float(params.get("scannet_fps") or 30.0),
-                   omni6d_fps=float(params.get("omni6d_fps") or 30.0), video_map=table)
+                   scannet_fps=fps("scannet_fps"), omni6d_fps=fps("omni6d_fps"), video_map=table)
 
     def locate(self, video: str) -> VideoSource:
         return map_video(video, self.video_map)

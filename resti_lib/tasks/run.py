@@ -264,7 +264,13 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
 
 
 def run_task(task: str, params: dict) -> TaskRun:
-    """Audit one task end to end and write its files. ``params``: the notebook's parameters."""
+    """Audit one task end to end and write its files. ``params``: the notebook's parameters (checked
+    against the task's defaults first: a value of the wrong type or out of range is refused by name,
+    whether it came from ``resti run`` or straight from papermill)."""
+    from ..defaults import check_params
+
+    t = task_for(task)
+    check_params(params, t.settings({}), file="notebook parameters", what=f"params of {t.notebook}")
     legacy, problems = legacy_rows_of(task, params["legacy_benchmark"])
     mine = legacy[legacy["Task"] == task]
     return run_rows(task, mine, params, problems=problems)
