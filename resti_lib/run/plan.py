@@ -19,6 +19,7 @@ from ..errors import InputError
 from .notebooks import load_params, notebook_parameters
 
 TASK_WAVE = 1
+STAGE_KEYS = frozenset({"notebook", "params", "wave", "needs", "on_demand", "wave_if_missing"})
 
 
 def task_stages(params_file=None) -> list[dict]:
@@ -71,6 +72,20 @@ def check_stages(cfg: dict, params_file) -> None:
             known = sorted(p.stem for p in paths.NOTEBOOKS.glob("*.ipynb"))
             raise InputError(f"no notebook {name!r} in {paths.NOTEBOOKS} (known: {', '.join(known)})",
                              file=where, row=f"stage {i}", field="notebook")
+        unknown = sorted(set(st) - STAGE_KEYS)
+        if unknown:
+            raise InputError(f"unknown stage field(s) {unknown}; a stage has {sorted(STAGE_KEYS)}", file=where,
+                             row=f"stage {i}", field=str(unknown[0]))
+        for key, ok, want in (("wave", lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+                               "an integer at least 0"),
+                              ("needs", lambda v: isinstance(v, list) and all(isinstance(x, str) for x in v),
+                               "a list of stage names"),
+                              ("on_demand", lambda v: isinstance(v, bool), "true or false"),
+                              ("wave_if_missing", lambda v: isinstance(v, dict) and set(v) == {"param", "wave"}
+                               and isinstance(v["wave"], int) and not isinstance(v["wave"], bool),
+                               "{param, wave}")):
+            if key in st and not ok(st[key]):
+                raise InputError(f"{st[key]!r} is not {want}", file=where, row=f"stage {i}", field=key)
         if st.get("params") is not None:
             if not isinstance(st["params"], str):
                 raise InputError(f"params {st['params']!r} is not a path", file=where, row=f"stage {i}",

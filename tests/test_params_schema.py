@@ -1,0 +1,131 @@
+"""One params schema, checked before anything runs (issue 20, item 2).
+
+The defaults are the schema: a key no default names is refused with the closest known key, a value of
+another type than its default's or out of its key's range is refused, and every error names the
+params file and the key. The same check serves ``resti run`` (main params and every stage's params),
+``resti measure --params``, ``resti reoption --params`` and a task notebook's parameters.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import yaml
+
+from resti_lib import defaults as D
+from resti_lib import paths
+from resti_lib.errors import InputError
+from resti_lib.io.params import MAX_PARAMS_BYTES, read_params
+from resti_lib.run.plan import main_config
+
+
+def _main(tmp_path, **changes):
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg.update(changes)
+    p = tmp_path / "main.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return p
+
+
+def test_a_misspelled_key_is_refused_with_the_closest_known_one(tmp_path):
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg["legacy_benchmak"] = cfg.pop("legacy_benchmark")
+    p = tmp_path / "main.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError) as e:
+        main_config(p)
+    assert e.value.file == str(p) and e.value.field == "legacy_benchmak"
+    assert "did you mean 'legacy_benchmark'?" in str(e.value)
+
+
+@pytest.mark.parametrize("key,value,needle", [
+    ("jobs", "two", "not an integer"), ("seed", "zero", "not an integer"), ("scannet_fps", 0, "above 0"),
+    ("scannet_fps", "thirty", "not a number"), ("world_seed", -1, "at least 0"), ("jobs", 0, "at least 1"),
+])
+def test_main_params_of_the_wrong_type_or_range_are_refused_by_name(tmp_path, key, value, needle):
+    p = _main(tmp_path, **{key: value})
+    with pytest.raises(InputError) as e:
+        main_config(p)
+    assert e.value.file == str(p) and e.value.field == key and needle in str(e.value)
+
+
+def test_a_stage_params_file_is_checked_against_its_notebook(tmp_path):
+    traj = yaml.safe_load((paths.PARAMS / "trajectory.yaml").read_text())
+    traj["compare_abs_tol_m"] = -5.0
+    tp = tmp_path / "trajectory.yaml"
+    tp.write_text(yaml.safe_dump(traj))
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg["stages"] = [{"notebook": "07_trajectory", "params": str(tp), "wave": 1}, *cfg["stages"]]
+    p = tmp_path / "main.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError) as e:
+        main_config(p)
+    assert e.value.file == str(tp) and e.value.field == "compare_abs_tol_m" and "at least 0" in str(e.value)
+    # a stage field of the wrong type, and an unknown one
+    cfg["stages"][0] = {"notebook": "07_trajectory", "params": "params/trajectory.yaml", "wave": "first"}
+    p.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError) as e:
+        main_config(p)
+    assert e.value.field == "wave" and e.value.file == str(p)
+    cfg["stages"][0] = {"notebook": "07_trajectory", "params": "params/trajectory.yaml", "speed": "fast"}
+    p.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError) as e:
+        main_config(p)
+    assert e.value.field == "speed"
+
+
+def test_an_empty_or_oversized_params_file_is_refused_at_once(tmp_path):
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("# nothing\n")
+    with pytest.raises(InputError) as e:
+        read_params(empty)
+    assert e.value.file == str(empty) and "empty" in str(e.value)
+    big = tmp_path / "big.yaml"
+    with big.open("w") as f:  # 12 MB of valid YAML
+        for i in range(12 * 1024 * 1024 // 24):
+            f.write(f"key_{i:012d}: 1234567\n")
+    assert big.stat().st_size > MAX_PARAMS_BYTES
+    t0 = time.perf_counter()
+    with pytest.raises(InputError) as e:
+        read_params(big)
+    assert time.perf_counter() - t0 < 1.0 and "bytes" in str(e.value) and e.value.file == str(big)
+
+
+def test_resti_measure_params_are_checked(tmp_path, capsys):
+    from resti_lib.measure.cli import measure_main
+
+    c = tmp_path / "c.json"
+    c.write_text('{"source": "ScanNet", "sequence": "scene0000_00", "entity": {"kind": "camera"}, '
+                 '"times": [0, 1], "operator": "displacement"}')
+    for text, field in (("scannet_fps: thirty\n", "scannet_fps"), ("scannet_fps: 2001-01-01\n", "scannet_fps"),
+                        ("pose_rul: nearest\n", "pose_rul")):
+        p = tmp_path / "p.yaml"
+        p.write_text(text)
+        assert measure_main([str(c), "--params", str(p)]) == 2
+        err = capsys.readouterr().err
+        assert str(p) in err and field in err and "Traceback" not in err
+
+
+def test_notebook_parameters_are_checked_by_the_task_run(tmp_path):
+    from resti_lib.tasks.run import run_task
+
+    with pytest.raises(InputError) as e:
+        run_task("Trajectory Description", {"seed": "zero", "legacy_benchmark": "x"})
+    assert e.value.field == "seed" and e.value.file == "notebook parameters"
+
+
+def test_every_default_params_file_meets_its_own_schema():
+    for f in sorted(paths.PARAMS.glob("*.yaml")):
+        d = yaml.safe_load(f.read_text())
+        D.check_params(d, d, file=f)  # by construction; a RANGES rule that refuses a default fails here
+
+
+def test_a_frame_rate_of_zero_is_refused_not_replaced():
+    from resti_lib.sources.context import SourceContext
+
+    with pytest.raises(InputError) as e:
+        SourceContext.from_params({"scannet_fps": 0})
+    assert e.value.field == "scannet_fps"
+    assert SourceContext.from_params({}).scannet_fps == yaml.safe_load(
+        (paths.PARAMS / "default.yaml").read_text())["scannet_fps"]
