@@ -129,3 +129,25 @@ def test_a_frame_rate_of_zero_is_refused_not_replaced():
     assert e.value.field == "scannet_fps"
     assert SourceContext.from_params({}).scannet_fps == yaml.safe_load(
         (paths.PARAMS / "default.yaml").read_text())["scannet_fps"]
+
+
+@pytest.mark.parametrize("where", ["legacy_folder", "inside_source_root"])
+def test_an_output_folder_on_an_input_is_refused_before_any_stage_runs(tmp_path, miniworld, where, capsys):
+    """output_dir set to the folder holding qa.parquet (or inside a source root): exit 2 naming it,
+    and nothing is written beside the input."""
+    import shutil
+
+    from resti_lib.run.cli import main as cli_main
+
+    inp = tmp_path / "in"
+    inp.mkdir()
+    shutil.copy(miniworld / "legacy" / "qa.parquet", inp / "qa.parquet")
+    out = inp if where == "legacy_folder" else miniworld / "waymo" / "out"
+    p = _main(tmp_path, world_dir="", legacy_benchmark=str(inp / "qa.parquet"),
+              scannet_root=str(miniworld / "scannet" / "scans"), waymo_root=str(miniworld / "waymo"),
+              omni6d_root=str(miniworld / "omni6d"), output_dir=str(out))
+    before = sorted(x.name for x in inp.iterdir())
+    assert cli_main(["run", "--params", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "refused before any stage ran" in err and str(out) in err
+    assert sorted(x.name for x in inp.iterdir()) == before and not (miniworld / "waymo" / "out").exists()

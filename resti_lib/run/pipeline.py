@@ -19,8 +19,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import paths
-from ..errors import InputError
-from .notebooks import NotebookError, notebook_parameters, run_notebook
+from ..errors import InputError, OutputError
+from .notebooks import NotebookError, load_params, notebook_parameters, run_notebook
 from .plan import closure, downstream, main_config, match_only, notebook_of, plan, stage_params
 
 REPORT = "report"  # the index page: a last stage of its own, run by this process
@@ -68,6 +68,49 @@ def ensure_world(cfg: dict) -> Path | None:
         atomic_write_bytes(stamp_file, stamp.encode("ascii"))
         print(f"resti run: mini-world ready ({time.perf_counter() - t0:.1f}s)", file=sys.stderr)
     return world
+
+
+INPUT_KEYS = ("legacy_benchmark", "scannet_root", "waymo_root", "omni6d_root", "video_map")
+STAGE_INPUT_KEYS = ("release_path", "reference_release")
+
+
+def output_placement_problem(cfg: dict, stages: list[dict], common: dict) -> str | None:
+    """Why an output folder of the run (``output_dir``, or a stage's ``release_dir``, ``table_dir``, ...)
+    is, holds or lies inside an input folder (the legacy file's folder, a source root, a release the
+    stages read), checked before any stage runs. The mini-world the run generates (``world_dir``) may
+    lie inside ``output_dir``, as in the default layout; nothing may be written inside it."""
+    from ..release.publish import input_problem
+    from .runinfo import OUTPUT_KEYS
+
+    def real(p):
+        return Path(os.path.realpath(paths.resolve(p)))
+
+    world = real(cfg["world_dir"]) if cfg.get("world_dir") else None
+    inputs = []
+    for k in INPUT_KEYS:
+        if cfg.get(k):
+            inputs.append((k, real(cfg[k]).parent if k in ("legacy_benchmark", "video_map") else real(cfg[k])))
+    outputs = [("output_dir", real(cfg.get("output_dir") or "outputs"))]
+    for s in stages:
+        own = load_params(s["params"]) if s.get("params") else {}
+        for k in OUTPUT_KEYS:
+            if own.get(k):
+                outputs.append((f"{s['notebook']}: {k}", real(own[k])))
+        for k in STAGE_INPUT_KEYS:
+            v = own.get(k, common.get(k))
+            if v and "${SHARED}" not in str(v):
+                inputs.append((f"{s['notebook']}: {k}", real(v)))
+    for okey, out in outputs:
+        for ikey, inp in inputs:
+            generated = world is not None and (inp == world or world in inp.parents)
+            if generated:  # our own mini-world: the output folder may hold it, never be or lie inside it
+                if out == world or world in out.parents:
+                    return f"{okey} {out} lies inside the generated mini-world {world}"
+                continue
+            why = input_problem(out, [inp])
+            if why:
+                return f"{okey} {out} {why} ({ikey}): refused before any stage ran"
+    return None
 
 
 def missing_inputs(cfg: dict) -> list[str]:
@@ -158,6 +201,9 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
     t_start = time.perf_counter()
     params_file = params_file or paths.PARAMS / "default.yaml"
     cfg = main_config(params_file)
+    placement = output_placement_problem(cfg, cfg.get("stages") or [], {k: v for k, v in cfg.items() if k != "stages"})
+    if placement:  # before the lock, the world or anything else is made
+        raise OutputError(placement, file=paths.resolve(params_file), field="output_dir")
     with run_lock(paths.resolve(cfg.get("output_dir") or "outputs")):
         return _run(cfg, only=only, jobs=jobs, force=force, t_start=t_start)
 
