@@ -91,7 +91,10 @@ class BusyError(RestiError, RuntimeError):
 
 
 class NotebookError(RestiError, RuntimeError):
-    """A notebook failed: names the notebook, the cell (index and first line) and the error."""
+    """A notebook failed: names the notebook, the cell (index and first line) and the error.
+    ``input_message``: the one line of an input error raised inside the notebook (else None)."""
+
+    input_message: str | None = None
 
 
 class InvariantError(RestiError, RuntimeError):

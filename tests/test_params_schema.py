@@ -151,3 +151,60 @@ def test_an_output_folder_on_an_input_is_refused_before_any_stage_runs(tmp_path,
     err = capsys.readouterr().err
     assert "refused before any stage ran" in err and str(out) in err
     assert sorted(x.name for x in inp.iterdir()) == before and not (miniworld / "waymo" / "out").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.notebook
+def test_an_input_error_inside_a_notebook_exits_2_with_its_one_line(tmp_path, miniworld, capsys):
+    """The release a notebook audits is a folder without row files: the error is found inside notebook
+    00, and resti run exits 2 (bad input) with the line the reader gives outside a notebook, not 1 with
+    a notebook failure."""
+    from resti_lib.io.benchmark import load_release
+    from resti_lib.run.cli import main as cli_main
+
+    empty = tmp_path / "not_a_release"
+    empty.mkdir()
+    with pytest.raises(InputError) as outside:
+        load_release(empty)
+    own = yaml.safe_load((paths.PARAMS / "answer_interface.yaml").read_text())
+    own["release_path"] = str(empty)
+    ai = tmp_path / "answer_interface.yaml"
+    ai.write_text(yaml.safe_dump(own))
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg["stages"] = [{**s, "params": str(ai)} if s["notebook"] == "00_answer_interface" else s for s in cfg["stages"]]
+    p = _main(tmp_path, world_dir="", legacy_benchmark=str(miniworld / "legacy" / "qa.parquet"),
+              scannet_root=str(miniworld / "scannet" / "scans"), waymo_root=str(miniworld / "waymo"),
+              omni6d_root=str(miniworld / "omni6d"), output_dir=str(tmp_path / "out"), stages=cfg["stages"])
+    assert cli_main(["run", "--params", str(p), "--only", "answer_interface"]) == 2
+    err = capsys.readouterr().err
+    assert f"resti run: input error: {outside.value}" in err
+    assert (tmp_path / "out" / "notebooks" / "00_answer_interface.ipynb").is_file()  # found inside the notebook
+
+
+def test_a_full_disk_names_the_file_being_written(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from resti_lib.io.files import atomic_write_bytes
+
+    real = os.fdopen
+
+    class Full:
+        def __init__(self, *a, **k):
+            self.f = real(*a, **k)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            self.f.close()
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fdopen", Full)
+    target = tmp_path / "release" / "resti.jsonl"
+    with pytest.raises(OSError) as e:
+        atomic_write_bytes(target, b"{}\n")
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(target)
+    assert list(target.parent.iterdir()) == []  # nothing half-written left behind

@@ -42,6 +42,9 @@ def test_malformed_legacy_rows_are_excluded_with_a_reason(world_with, tmp_path):
     u = df.index[df["Task"] == "Dimensional Measurement"][0]
     df.loc[u, "Task"] = "Depth Guessing"                       # unknown task
     bad[u] = "Task"
+    w = df.index[df["Task"] == "Trajectory Description"][0]
+    df.loc[w, "Video"] = "seg|0_camera_1.mp4"                  # a '|' in the video name
+    bad[w] = "Video"
     df.to_parquet(qa)
     out = tmp_path / "out"
     params = _params(world, out)

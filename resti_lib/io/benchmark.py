@@ -80,6 +80,12 @@ def canonical_row_text(row: dict) -> str:
     return json.dumps(obj, sort_keys=True, ensure_ascii=False, default=str)
 
 
+def key_part(value) -> str:
+    """A field as it stands in a Legacy Row Key: ``|`` written ``%7C`` (a malformed video name that
+    holds one still gives a key of five parts, and its row is excluded by name)."""
+    return str(value).replace("|", "%7C")
+
+
 def legacy_row_keys(rows: Iterable[dict]) -> list[str]:
     """``Source|Task|Video|ID|uid=<16 hex>`` for each row, uid = sha256 of its canonical content.
 
@@ -92,7 +98,7 @@ def legacy_row_keys(rows: Iterable[dict]) -> list[str]:
         n = seen[text]
         seen[text] += 1
         uid = hashlib.sha256((text + (f"#{n}" if n else "")).encode()).hexdigest()[:16]
-        keys.append(f"{r.get('Source')}|{r.get('Task')}|{r.get('Video')}|{r.get('ID')}|uid={uid}")
+        keys.append(f"{r.get('Source')}|{r.get('Task')}|{key_part(r.get('Video'))}|{r.get('ID')}|uid={uid}")
     return keys
 
 
@@ -132,6 +138,9 @@ def validate_row(r: dict, *, file, row, known_tasks: Collection[str] | None = No
         bad("known_task", "Task", f"unknown task {r.get('Task')!r}")
     if r.get("Source") not in SOURCES:
         bad("known_source", "Source", f"unknown source {r.get('Source')!r}")
+    video = r.get("Video")
+    if not isinstance(video, str) or not video.strip() or "|" in video or any(ord(c) < 32 for c in video):
+        bad("video_name", "Video", f"Video {video!r} is not a file name (text without '|' or control characters)")
     cand = r.get("Candidates")
     if not isinstance(cand, dict):
         bad("candidates_json", "Candidates", "Candidates is not a dict")
@@ -286,7 +295,7 @@ def key_problem(key: Any, *, source: Any, task: Any, video: Any, legacy_id: Any)
     m = _KEY_RE.match(key)
     if m is None:
         return f"Legacy Row Key {key!r} is not Source|Task|Video|ID|uid=<16 hex>"
-    stated = {"Source": source, "Task": task, "Video": video, "ID": legacy_id}
+    stated = {"Source": source, "Task": task, "Video": key_part(video), "ID": legacy_id}
     parts = {"Source": m["source"], "Task": m["task"], "Video": m["video"], "ID": m["id"]}
     wrong = [k for k in stated if parts[k] != str(stated[k])]
     if wrong:

@@ -310,7 +310,7 @@ def _check_coverage(rel: Release, legacy_keys: list[str] | None) -> dict:
 
 # Schema problems found while reading, reported under their own check names (those that are also
 # row checks are merged into the row check of the same name).
-SCHEMA_CHECKS = ("columns", "row_ids", "legacy_key_format", "id_format", "known_task", "known_source",
+SCHEMA_CHECKS = ("columns", "row_ids", "legacy_key_format", "id_format", "known_task", "known_source", "video_name",
                  "exclusion_reasons", "answer_letter", "answer_in_candidates", "candidates_json",
                  "candidate_strings", "answer_detail", "finite_times")
 

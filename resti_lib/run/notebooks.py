@@ -32,6 +32,10 @@ class NotebookRun:
 # literals. Any other tag (``!!binary``, ``!!timestamp`` and plain dates, ``!!set``, ``!!omap``,
 # ``!!pairs``, ``!!python/...``, custom tags) is refused before it is constructed, so a params file
 # can never become code in a notebook.
+#: Error types that, raised inside a notebook, mean bad input (``resti run`` exits 2 with their line).
+INPUT_ERRORS = frozenset({"InputError", "SourceError", "SourceGapError", "OutputError"})
+
+
 def load_params(path: str | Path) -> dict:
     """A params YAML file (:func:`resti_lib.io.params.read_params`: plain values, size limit)."""
     return read_params(path)
@@ -169,8 +173,11 @@ def run_notebook(nb_path: str | Path, params: dict, *, out_dir: Path | None = No
                                        extra_arguments=list(KERNEL_ARGUMENTS),
                                        kernel_manager_class=_kernel_manager_writing_to(sink))
         except PapermillExecutionError as e:
-            raise NotebookError(f"notebook {nb_path.name} failed in {_failing_cell(executed)} "
-                                f"(executed copy: {executed})") from e
+            err = NotebookError(f"notebook {nb_path.name} failed in {_failing_cell(executed)} "
+                                f"(executed copy: {executed})")
+            if e.ename in INPUT_ERRORS:  # bad input found inside the notebook: the run reports it as input
+                err.input_message = " ".join(str(e.evalue).split())
+            raise err from e
         except Exception as e:  # the kernel could not start, died or timed out
             first = (str(e).strip().splitlines() or [""])[0]
             log = _tail(sink)

@@ -277,6 +277,10 @@ def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float) -> i
     except NotebookError as e:
         if bar is not None:
             bar.close()
+        said = getattr(e, "input_message", None)
+        if said:  # the same one line as outside a notebook, and the same exit code
+            print(f"resti run: input error: {said}", file=sys.stderr)
+            return 2
         print(f"resti run: {e}", file=sys.stderr)
         return 1
     if bar is not None:
