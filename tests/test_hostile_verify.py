@@ -243,3 +243,28 @@ def test_row_files_that_disagree_fail_verify_and_reoption(tmp_path):
                    for n in ("resti.jsonl", "resti.parquet"))
     (folder / "SHA256SUMS").write_text(sums)
     assert verify_path(folder)["checks"]["row_files_agree"]["status"] == "pass"
+
+
+@pytest.mark.slow
+def test_a_100_mb_release_line_is_refused_within_bounded_memory(tmp_path):
+    """A release line of 100 MB is refused by name while reading at most a line limit at a time (in a
+    separate process, whose peak memory is measured)."""
+
+    from tests.helpers import seal_release
+    from tests.helpers import write_release as write_rows
+    from tests.test_reoption import _tiny_rows
+
+    folder = seal_release(write_rows(_tiny_rows()[:5], [], tmp_path / "rel"))
+    with (folder / "resti.jsonl").open("a") as f:
+        f.write('{"Question": "' + "x" * 100_000_000 + '"}\n')
+    r = subprocess.run([sys.executable, "-c", (
+        "import sys\n"
+        "from resti_lib.errors import InputError\n"
+        "from resti_lib.io.files import read_jsonl\n"
+        "try:\n    read_jsonl(sys.argv[1])\nexcept InputError as e:\n    print(e)\n"
+        "print(next(int(x.split()[1]) for x in open('/proc/self/status') if x.startswith('VmHWM')))"),
+        str(folder / "resti.jsonl")],
+        capture_output=True, text=True, timeout=120, check=True)
+    message, peak_kb = r.stdout.strip().splitlines()
+    assert "line 6 is longer than" in message and "resti.jsonl" in message
+    assert int(peak_kb) < 100_000  # the 100 MB line is never held whole (it was 523 MB)

@@ -124,18 +124,40 @@ def parse_json(text: str, *, file=None, row=None, field: str | None = None, what
     return obj
 
 
-def read_jsonl(path: str | os.PathLike) -> list[dict]:
-    """One JSON object per non-blank line of a UTF-8 file."""
+MAX_LINE_BYTES = 4_000_000  # one row of a JSONL file (a release row is a few kB; a longer line is refused)
+
+
+def read_jsonl(path: str | os.PathLike, *, max_line: int = MAX_LINE_BYTES) -> list[dict]:
+    """One JSON object per non-blank line of a UTF-8 file, read line by line: a line over
+    ``max_line`` bytes is refused (file and line named) before it is held whole in memory."""
     path = Path(path)
     rows = []
-    for n, line in enumerate(read_text(path).splitlines(), start=1):
-        if not line.strip():
-            continue
-        obj = parse_json(line, file=path, row=f"line {n}", what=f"line {n}")
-        if not isinstance(obj, dict):
-            raise InputError(f"line {n} is a JSON {type(obj).__name__}, not an object", file=path,
-                             row=f"line {n}")
-        rows.append(obj)
+    with open_regular(path) as f:
+        n = 0
+        while True:
+            raw = f.readline(max_line + 1)
+            if not raw:
+                break
+            n += 1
+            if len(raw) > max_line and not raw.endswith(b"\n"):
+                raise InputError(f"line {n} is longer than {max_line:,} bytes (a JSONL row is a few kB; damaged "
+                                 "or not a row file?)", file=path, row=f"line {n}")
+            if n == 1:
+                if raw.startswith(_UTF16_BOMS):
+                    raise InputError("is UTF-16 text; resti reads UTF-8 (convert the file to UTF-8)", file=path)
+                raw = raw.removeprefix(_UTF8_BOM)
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise InputError(f"is not UTF-8 text: byte 0x{raw[e.start]:02x} at line {n}", file=path,
+                                 row=f"line {n}") from None
+            if not line.strip():
+                continue
+            obj = parse_json(line, file=path, row=f"line {n}", what=f"line {n}")
+            if not isinstance(obj, dict):
+                raise InputError(f"line {n} is a JSON {type(obj).__name__}, not an object", file=path,
+                                 row=f"line {n}")
+            rows.append(obj)
     return rows
 
 
