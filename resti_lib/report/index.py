@@ -80,7 +80,6 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("reference_comparison", "Accepted and excluded per task: our release beside the reference."),
         ("reference_by_source", "Reference release: accepted and excluded per task and source."),
         ("reference_exclusion_reasons", "Reference release: exclusion reasons by task."),
-        ("reference_strongest_attacks", "Reference release: strongest blind attack per task."),
     )),
     ("Self-test on the mini-world (synthetic)", (
         ("selftest_verdicts", "Expected verdict (generator manifest) against the audit's verdict."),
@@ -168,27 +167,63 @@ def _verdict_shares(tables: Path) -> str:
     return to_html(df, caption="Verdict shares (every legacy row ends in exactly one verdict).")
 
 
-def _leaks(table: pd.DataFrame | None, what: str) -> str:
+def release_attack_counts(out_root: Path):
+    """The attack counts of our release (:func:`resti_lib.release.audit.attack_counts` of
+    ``tables/attacks_release.csv``), or None before notebook 99 wrote it."""
+    from ..release.audit import attack_counts
+
+    table = _read_csv(Path(out_root) / "tables" / "attacks_release.csv")
+    return None if table is None or "significant" not in table else attack_counts(table)
+
+
+def reference_audit(out_root: Path) -> dict | None:
+    """The audit summary notebook 00 wrote for the reference release (``answer_interface/audit_<label>.json``,
+    :func:`resti_lib.release.audit.audit_summary`), or None (no reference audited: notebook 00 audits our
+    own release, label ``release``, when the reference is absent)."""
+    for p in sorted((Path(out_root) / "answer_interface").glob("audit_*.json")):
+        s = _read_json(p)
+        if isinstance(s, dict) and s.get("label") not in (None, "release") and "attacks" in s:
+            return s
+    return None
+
+
+def _leaks(table: pd.DataFrame | None, what: str, counts=None) -> str:
+    """The attack counts (the sentence ``resti attack`` prints) and the significant rows, strongest first."""
+    from ..release.audit import attack_counts
+
     if table is None or "significant" not in table:
         return f"<p>No attack table for {what}.</p>"
+    counts = counts or attack_counts(table)
     sig = table[table["significant"].astype(str) == "True"].copy()
-    cells = table[["task", "source"]].drop_duplicates()
-    n_sig_cells = len(sig[["task", "source"]].drop_duplicates())
-    head = (f"<p><b>{len(sig)}</b> of {len(table):,} attack rows are Holm-significant, in {n_sig_cells} of "
-            f"{len(cells)} task/source cells (source ALL pools a task).</p>")
+    head = f"<p class=\"counts\">{_e(counts.sentence())}.</p>"
     if sig.empty:
         return head
     sig = sig.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
     shown = pd.DataFrame({"task": sig["task"], "source": sig["source"], "attack": sig["attack"],
-                          "hits / picked": [f"{int(h)}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
+                          "family": sig["family"],
+                          "hits / picked": [f"{h:g}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
                           "accuracy": sig["accuracy"].astype(float), "p_value": sig["p_value"].astype(float)})
     return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%).",
                           max_rows=25)
 
 
+def _verify_line(verify: dict, failures: Path | None, report_dir: Path) -> str:
+    """``resti verify``: PASSED, or FAILED with the failing checks and their rows one click away."""
+    if verify.get("passed"):
+        return f"<p><code>{_e(verify.get('command', 'resti verify'))}</code>: <b>PASSED</b>.</p>"
+    checks = ", ".join(f"<code>{_e(k)}</code> {n} rows" for k, n in (verify.get("failing") or {}).items())
+    link = ""
+    if failures is not None and failures.with_suffix(".csv").exists():
+        link = (f" The failing rows, with their question, candidates and the check's message: "
+                f"{_table_links(failures.with_suffix('.md'), report_dir)}.")
+    return (f"<p class=\"verify-fail\"><code>{_e(verify.get('command', 'resti verify'))}</code>: <b>FAILED</b> "
+            f"({checks}).{link}</p>")
+
+
 def headline_html(out_root: Path) -> str:
     tables = out_root / "tables"
     rel = out_root / "release"
+    report_dir = out_root / "report"
     parts = ["<h3>Our release</h3>"]
     meta = _read_json(rel / "release.json")
     val = _read_json(rel / "validation.json")
@@ -212,21 +247,42 @@ def headline_html(out_root: Path) -> str:
                                            " shares of the reports)."))
     ours = _read_csv(tables / "attacks_release.csv")
     if ours is not None:
-        parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release"))
-    ref = _read_csv(tables / "reference_attacks.csv")
+        summary = _read_json(tables / "audit_release.json") or {}
+        cmd = (summary.get("attacks") or {}).get("command")
+        parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release")
+                     + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>.</p>" if cmd else ""))
+    parts.append("<h3>The reference release <span class=\"label real\">real data</span></h3>")
+    ref = reference_audit(out_root)
     if ref is None:
-        ref = _read_csv(out_root / "answer_interface" / "attacks_resti_v5.csv")
-    parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
-    parts.append(_leaks(ref, "the reference release") if ref is not None else
-                 "<p>No reference release was found (<code>reference_release</code> in params/release.yaml).</p>")
+        parts.append("<p>No reference release was audited (<code>release_path</code> in "
+                     "params/answer_interface.yaml).</p>")
+    else:
+        ai = out_root / "answer_interface"
+        label = ref["label"]
+        parts.append(f"<p>Release <code>{_e(ref['release'])}</code>.</p>")
+        parts.append(_verify_line(ref["verify"], ai / f"verify_failures_{label}", report_dir))
+        parts.append(_leaks(_read_csv(ai / f"attacks_{label}.csv"), "the reference release")
+                     + f"<p class=\"more\">The same counts: <code>{_e(ref['attacks']['command'])}</code>.</p>")
     recall = _read_csv(tables / "selftest_defect_recall.csv")
     if recall is not None:
-        parts.append("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">"
-                     "synthetic</span></h3><p>What the audit found against what the generator injected (its "
-                     "manifest). This checks the audit on generated data with known defects; it is not a "
-                     "result on STI-Bench.</p>" + to_html(recall, caption="Defect recall and precision against "
-                                                                           "the generator's manifest.") + "</div>")
+        parts.append(selftest_html(recall))
     return "<section id=\"headline\"><h2>Headline</h2>" + "".join(p for p in parts if p) + "</section>"
+
+
+SELFTEST_TEXT = (
+    "What the audit found against what the generator injected (its manifest). <b>What it shows:</b> on "
+    "data with known defects, the audit finds the defects it was built to find, gives the verdicts the "
+    "generator expected and recomputes the true values, so a change that breaks a detector shows here. "
+    "<b>What it does not show:</b> the generator and the audit are written by the same project from the same "
+    "reading of the ReSTI report, so 100% here means the two agree with each other, not that either is right "
+    "about STI-Bench; defects nobody thought of are neither injected nor found; the mini-world is small and "
+    "clean beside real sources. It is not a result on STI-Bench: the reference release above is.")
+
+
+def selftest_html(recall: pd.DataFrame) -> str:
+    return ("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">synthetic"
+            f"</span></h3><p>{SELFTEST_TEXT}</p>"
+            + to_html(recall, caption="Defect recall and precision against the generator's manifest.") + "</div>")
 
 
 # --------------------------------------------------------------------------- figures, tables

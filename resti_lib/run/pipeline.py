@@ -284,13 +284,13 @@ def _read_json(p: Path):
         return None
 
 
-def _significant(csv_path: Path, *, skip=()) -> list[dict]:
+def _significant(csv_path: Path) -> list[dict]:
     import csv
 
     if not csv_path.exists():
         return []
     with open(csv_path, encoding="utf-8", newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("significant") == "True" and r.get("attack") not in skip]
+        rows = [r for r in csv.DictReader(f) if r.get("significant") == "True"]
     return sorted(rows, key=lambda r: -float(r.get("accuracy") or 0))
 
 
@@ -325,17 +325,21 @@ def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: floa
         lines.append(f"  release: {c.get('original', 0):,} legacy rows ({kind}) -> {c.get('accepted', 0):,} "
                      f"accepted + {c.get('excluded', 0):,} excluded; verify "
                      + ("PASSED" if val and val.get("passed") else "FAILED" if val else "not run"))
+    from ..report.index import reference_audit, release_attack_counts
+
     tables = out_root / "tables"
-    ours = _significant(tables / "attacks_release.csv", skip=("label_prior",))
-    prior = _significant(tables / "attacks_release.csv") if not ours else []
-    if (tables / "attacks_release.csv").exists():
-        lines.append(f"  blind attacks on our release: {len(ours)} Holm-significant"
-                     + (" (label priors aside: " + ", ".join(f"{r['task']}/{r['source']}" for r in prior) + ")"
-                        if prior else ""))
-    ref = _significant(tables / "reference_attacks.csv")
-    if (tables / "reference_attacks.csv").exists():
-        top = "; ".join(f"{r['task']}/{r['source']} {r['attack']} {float(r['accuracy']):.1%}" for r in ref[:4])
-        lines.append(f"  blind attacks on the reference release: {len(ref)} Holm-significant"
-                     + (f", strongest: {top}" if ref else ""))
+    ours = release_attack_counts(out_root)
+    if ours is not None:
+        lines.append(f"  blind attacks on our release: {ours.sentence()}; `resti attack {_rel_to_cwd(rel)}` prints "
+                     "the same")
+    ref = reference_audit(out_root)
+    if ref is not None:
+        v, att = ref["verify"], ref["attacks"]
+        failing = ", ".join(f"{k} {n}" for k, n in v["failing"].items())
+        sig = _significant(out_root / "answer_interface" / f"attacks_{ref['label']}.csv")
+        top = "; ".join(f"{r['task']}/{r['source']} {r['attack']} {float(r['accuracy']):.1%}" for r in sig[:4])
+        lines.append(f"  reference release {ref['release']}: resti verify "
+                     + ("PASSED" if v["passed"] else f"FAILED ({failing} rows)")
+                     + f"; blind attacks: {att['sentence']}" + (f", strongest: {top}" if top else ""))
     lines.append(f"  report: {_rel_to_cwd(index)}  (release: {_rel_to_cwd(rel)}, tables: {_rel_to_cwd(tables)})")
     return "\n".join(lines)
