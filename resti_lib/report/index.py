@@ -251,7 +251,7 @@ def headline_html(out_root: Path) -> str:
         cmd = (summary.get("attacks") or {}).get("command")
         parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release")
                      + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>.</p>" if cmd else ""))
-    parts.append("<h3>The reference release <span class=\"label real\">real data</span></h3>")
+    parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
     ref = reference_audit(out_root)
     if ref is None:
         parts.append("<p>No reference release was audited (<code>release_path</code> in "
