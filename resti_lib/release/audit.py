@@ -25,7 +25,7 @@ from .. import LETTERS, paths
 from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
-from ..options.attacks import attack_table, headline, select, strongest
+from ..options.attacks import attack_table, headline, select
 from ..tasks import interface
 from ..tasks import names as task_names
 from .verify import release_interface, verify_release
@@ -33,16 +33,6 @@ from .verify import release_interface, verify_release
 #: The suite every place runs on a release (``resti attack`` without options): every family, the
 #: learned attackers with their default settings, Holm's correction at ``alpha`` over the whole table.
 SUITE = {"families": "all", "fast": False, "attacks": "all", "alpha": 0.05}
-
-# Reference figures of the report for the rebuilt v5 options (section "Repair: regenerated
-# Orientation choices" and the Grounding repair): value, hits, rows.
-PAPER_REFERENCE = {
-    ("Ego-Centric Orientation", "median"): (37, 185),
-    ("Ego-Centric Orientation", "best fixed signed-value rank"): (38, 185),
-    ("3D Video Grounding", "strongest full-coverage attack"): (71, 314),
-}
-RANK_ATTACKS = ("min", "rank_2", "median", "rank_4", "max")
-
 
 @dataclass(frozen=True)
 class AttackCounts:
@@ -298,32 +288,6 @@ def audit_release(release: str | Path, *, out_dir: str | Path, label: str | None
     files.append(write_audit_summary(out_dir / f"audit_{label}.json",
                                      audit_summary(run, validation, label=label, path=release)))
     return AuditResult(label, validation, table, files, run)
-
-
-def paper_comparison(table: pd.DataFrame) -> pd.DataFrame:
-    """Our figures beside the report's for the rebuilt ReSTI v5 options."""
-    rows = []
-    if "family" in table.columns:  # the report's figures are option-only attacks
-        table = table[table["family"] == "option"]
-    o = table[(table["task"] == "Ego-Centric Orientation") & (table["source"] == "ALL")]
-    if not o.empty:
-        med = o[o["attack"] == "median"].iloc[0]
-        ranks = o[o["attack"].isin(RANK_ATTACKS)].sort_values("hits", ascending=False, kind="stable").iloc[0]
-        rows.append(("Ego-Centric Orientation", "median", int(med["hits"]), int(med["picked"])))
-        rows.append(("Ego-Centric Orientation", "best fixed signed-value rank",
-                     int(ranks["hits"]), int(ranks["picked"]), ranks["attack"]))
-    g = strongest(table, "3D Video Grounding")
-    if g is not None:
-        rows.append(("3D Video Grounding", "strongest full-coverage attack", int(g["hits"]), int(g["picked"]),
-                     g["attack"]))
-    out = []
-    for r in rows:
-        task, what, hits, n = r[:4]
-        ph, pn = PAPER_REFERENCE[(task, what)]
-        out.append({"task": task, "figure": what, "attack": r[4] if len(r) > 4 else what,
-                    "ours": f"{hits}/{n} = {hits / n:.2%}", "report": f"{ph}/{pn} = {ph / pn:.2%}",
-                    "same": (hits, n) == (ph, pn)})
-    return pd.DataFrame(out)
 
 
 def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05, attacks="all",

@@ -49,6 +49,11 @@ p.caption{font-size:.88em;color:#444;margin:.8em 0 .2em}p.more{font-size:.8em;co
 figure{margin:1.2em 0 2em;max-width:100%}figure img{display:block;max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:.88em;color:#444;margin-top:.3em}figcaption .file{color:#888;font-size:.9em}
 ul.files{columns:2;font-size:.88em}ul.files li{break-inside:avoid}
+.status{display:inline-block;font-size:.85em;font-weight:600;padding:0 .4em;border-radius:3px;white-space:nowrap}
+.status.ok{background:#d8eedd;color:#14532d}.status.bad{background:#f8d7d3;color:#7a1a10}
+.status.na{background:#eee;color:#444}.status.leak{background:#fde7c4;color:#6b3e00}
+table.claims td.how{font-size:.92em;color:#444}table.claims .where{font-size:.85em;color:#777}
+p.verify-fail{background:#fdf0ee;border-left:3px solid #c0392b;padding:.3em .6em}
 """
 
 # Tables shown on the page, by section: (file stem under tables/, caption). Every other table is
@@ -66,8 +71,6 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("answer_layer_defects", "Answer-layer defects by task (rows)."),
     )),
     ("Exclusions", (
-        ("exclusion_classes", ("Exclusions by class: recoverable (ambiguous or unmatched referents) and "
-                               "structural (defective task statements).")),
         ("exclusion_reasons", "Exclusion reasons by task (a row can carry several)."),
     )),
     ("Answer interface", (
@@ -86,7 +89,7 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("selftest_values", "Accepted rows whose answer equals the generator's true value."),
     )),
 )
-HEADLINE_TABLES = ("defect_categories", "selftest_defect_recall")
+HEADLINE_TABLES = ("defect_categories", "selftest_defect_recall", "exclusion_classes", "paper_claims_legacy")
 
 
 def _rel(target: Path, base: Path) -> str:
@@ -203,8 +206,8 @@ def _leaks(table: pd.DataFrame | None, what: str, counts=None) -> str:
                           "family": sig["family"],
                           "hits / picked": [f"{h:g}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
                           "accuracy": sig["accuracy"].astype(float), "p_value": sig["p_value"].astype(float)})
-    return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%).",
-                          max_rows=25)
+    return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%; the whole "
+                          "table is linked under Tables).", max_rows=10)
 
 
 def _verify_line(verify: dict, failures: Path | None, report_dir: Path) -> str:
@@ -283,6 +286,81 @@ def selftest_html(recall: pd.DataFrame) -> str:
     return ("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">synthetic"
             f"</span></h3><p>{SELFTEST_TEXT}</p>"
             + to_html(recall, caption="Defect recall and precision against the generator's manifest.") + "</div>")
+
+
+# ------------------------------------------------------------------- the ReSTI report, measured
+
+STATUS_CLASS = {"reproduced": "ok", "not reproduced": "bad", "not checkable here": "na", "leak not in the report": "leak"}
+
+
+def _claims(out_root: Path) -> pd.DataFrame | None:
+    from .paper import panel
+
+    frames = [_read_csv(out_root / "answer_interface" / "paper_claims_v5.csv"),
+              _read_csv(out_root / "tables" / "paper_claims_legacy.csv")]
+    if all(f is None for f in frames):
+        return None
+    return panel(*[f.fillna("") if f is not None else None for f in frames])
+
+
+def paper_html(out_root: Path, report_dir: Path) -> str:
+    """The panel: every quantitative claim of the ReSTI report we can check, the figure we measure and
+    its status, then the leaks of v5 the report does not mention."""
+    from .paper import STATUSES, status_counts
+
+    df = _claims(out_root)
+    if df is None:
+        return ""
+    n = status_counts(df)
+    summary = ", ".join(f"<span class=\"status {STATUS_CLASS[s]}\">{n[s]} {_e(s)}</span>" for s in STATUSES if n[s])
+    rows = []
+    for r in df.itertuples(index=False):
+        cls = STATUS_CLASS.get(r.status, "na")
+        rows.append(f"<tr class=\"{cls}\"><td>{_e(r.claim)}<br><span class=\"where\">{_e(r.section)}</span></td>"
+                    f"<td>{_e(r[3])}</td><td>{_e(r.measured)}</td>"
+                    f"<td><span class=\"status {cls}\">{_e(r.status)}</span></td><td class=\"how\">{_e(r.how)}</td></tr>")
+    links = " · ".join(_table_links(p.with_suffix(".md"), report_dir) for p in
+                       (out_root / "answer_interface" / "paper_claims_v5.csv",
+                        out_root / "tables" / "paper_claims_legacy.csv") if p.exists())
+    return ("<section id=\"paper\"><h2>The ReSTI report against what we measure</h2>"
+            "<p>Each quantitative claim of the ReSTI report that can be checked here, the figure we measure, and "
+            "whether it is <b>reproduced</b>; claims on ReSTI v5 are measured on the public release (notebook 00), "
+            "claims on the legacy benchmark on this run's legacy input (notebook 99, only when it is real), and a "
+            f"claim that needs what is not here says why. {summary}.</p>"
+            "<div class=\"table-wrap\"><table class=\"resti-table claims\"><thead><tr><th>claim</th>"
+            "<th>ReSTI report</th><th>measured</th><th>status</th><th>how / why</th></tr></thead><tbody>"
+            + "".join(rows) + "</tbody></table></div>"
+            + (f"<p class=\"more\">{links}</p>" if links else "") + "</section>")
+
+
+def exclusions_html(out_root: Path, report_dir: Path) -> str:
+    """ReSTI v5's exclusions explained (its codes, what they mean, the split by the stated rule) and
+    ours by the same rule."""
+    ref = reference_audit(out_root)
+    parts = []
+    if ref is not None:
+        ai = out_root / "answer_interface"
+        label = ref["label"]
+        split, glossary = _read_csv(ai / f"exclusion_split_{label}.csv"), _read_csv(ai / f"exclusion_glossary_{label}.csv")
+        if split is not None and glossary is not None:
+            from .exclusions import glossary_spec
+
+            parts.append(f"<h3>The reference release ({_e(label)}) <span class=\"label real\">real data</span></h3>"
+                         f"<p><b>Rule:</b> {_e(glossary_spec()['rule'])}.</p>"
+                         + to_html(split, caption="Exclusions by class (ReSTI report: its figures beside ours).")
+                         + to_html(glossary, caption="Every exclusion code of the reference release: verification "
+                                   "verdicts (what a check of the source found) first, then reason codes (engineering "
+                                   "statuses of its pipeline), with our nearest reason code.")
+                         + f"<p class=\"more\">{_table_links(ai / f'exclusion_glossary_{label}.md', report_dir)}</p>")
+    ours = _read_csv(out_root / "tables" / "exclusion_classes.csv")
+    if ours is not None:
+        from .statistics import EXCLUSION_RULE
+
+        parts.append(f"<h3>Our release</h3><p><b>The same rule on our reason codes:</b> {_e(EXCLUSION_RULE)}.</p>"
+                     + to_html(ours, caption="Our exclusions by class."))
+    if not parts:
+        return ""
+    return "<section id=\"exclusions\"><h2>Exclusions explained</h2>" + "".join(parts) + "</section>"
 
 
 # --------------------------------------------------------------------------- figures, tables
@@ -400,11 +478,11 @@ def write_index(out_root: Path | None = None, *, title: str = "resti audit repor
     index = report_dir / "index.html"
     if context is None:
         context = ((_read_json(out_root / "release" / "release.json") or {}).get("run"))
-    sections = [headline_html(out_root), figures_html(out_root, report_dir, products),
-                tables_html(out_root, report_dir, products), notebooks_html(report_dir, products),
-                release_html(out_root, report_dir)]
-    ids = [("headline", "Headline"), ("figures", "Figures"), ("tables", "Tables"),
-           ("notebooks", "Notebooks"), ("release", "Release files")]
+    sections = [headline_html(out_root), paper_html(out_root, report_dir), exclusions_html(out_root, report_dir),
+                figures_html(out_root, report_dir, products), tables_html(out_root, report_dir, products),
+                notebooks_html(report_dir, products), release_html(out_root, report_dir)]
+    ids = [("headline", "Headline"), ("paper", "ReSTI report vs measured"), ("exclusions", "Exclusions"),
+           ("figures", "Figures"), ("tables", "Tables"), ("notebooks", "Notebooks"), ("release", "Release files")]
     toc = " ".join(f'<a href="#{i}">{t}</a>' for (i, t), s in zip(ids, sections) if s)
     body = [f"<header id=\"run\"><h1>{_e(title)}</h1>{header_html(context)}</header>",
             f"<nav class=\"toc\">{toc}</nav>", *sections]
