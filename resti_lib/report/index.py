@@ -21,6 +21,8 @@ import pandas as pd
 from .. import paths
 from ..io.files import atomic_write_bytes
 from ..io.tables import percent, to_html
+from .examples import CSS as EX_CSS
+from .examples import card_html, cards_html, one_per_verdict
 from .figures import ordered_figures
 
 CSS = """
@@ -363,6 +365,55 @@ def exclusions_html(out_root: Path, report_dir: Path) -> str:
     return "<section id=\"exclusions\"><h2>Exclusions explained</h2>" + "".join(parts) + "</section>"
 
 
+# ------------------------------------------------------------------------------------ examples
+
+EXAMPLES_PAGE = "examples.html"
+
+
+def _examples(out_root: Path, products: set | None) -> pd.DataFrame | None:
+    p = out_root / "tables" / "examples.csv"
+    if not p.exists() or not _current(p, out_root, products):
+        return None
+    try:
+        return pd.read_csv(p, dtype=str, keep_default_na=False)
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return None
+
+
+def examples_html(out_root: Path, report_dir: Path, products: set | None = None) -> str:
+    """One example of each verdict on the page, every task's examples on ``examples.html``."""
+    ex = _examples(out_root, products)
+    if ex is None or ex.empty:
+        return ""
+    tasks = list(dict.fromkeys(ex["task"]))
+    links = " · ".join(f'<a href="{EXAMPLES_PAGE}#ex-{_e(t.lower().replace(" ", "-").replace("&", "and"))}">'
+                       f"{_e(t)}</a>" for t in tasks)
+    first = one_per_verdict(ex)
+    return ("<section id=\"examples\"><h2>Before and after: examples</h2>"
+            f"<p>One legacy row of each verdict beside its repaired form, with the source evidence and the defects. "
+            f"Every task, up to two rows per verdict: <a href=\"{EXAMPLES_PAGE}\">all examples</a> ({links}).</p>"
+            + "".join(card_html(r) for r in first.to_dict("records")) + "</section>")
+
+
+def write_examples_page(out_root: Path, report_dir: Path, title: str, products: set | None = None) -> Path | None:
+    """``report/examples.html``: every example, by task, with a link back to the index."""
+    page = report_dir / EXAMPLES_PAGE
+    ex = _examples(out_root, products)
+    if ex is None or ex.empty:
+        page.unlink(missing_ok=True)
+        return None
+    doc = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+           "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+           f"<title>{_e(title)}: examples</title><style>{CSS}{EX_CSS}</style></head><body>\n"
+           f"<p><a href=\"index.html\">&larr; back to the report</a></p><h1>Before and after: examples</h1>"
+           "<p>Per task and verdict, up to two legacy rows (the rows with the most defects first) beside their "
+           "repaired form, with the source evidence and the defects (table <code>tables/examples.csv</code>; every "
+           "row's full record is in <code>release/provenance.parquet</code>).</p>\n"
+           + cards_html(ex) + "\n</body></html>\n")
+    atomic_write_bytes(page, doc.encode("utf-8"))
+    return page
+
+
 # --------------------------------------------------------------------------- figures, tables
 
 def _current(p: Path, out_root: Path, products: set | None) -> bool:
@@ -478,17 +529,20 @@ def write_index(out_root: Path | None = None, *, title: str = "resti audit repor
     index = report_dir / "index.html"
     if context is None:
         context = ((_read_json(out_root / "release" / "release.json") or {}).get("run"))
+    write_examples_page(out_root, report_dir, title, products)
     sections = [headline_html(out_root), paper_html(out_root, report_dir), exclusions_html(out_root, report_dir),
-                figures_html(out_root, report_dir, products), tables_html(out_root, report_dir, products),
-                notebooks_html(report_dir, products), release_html(out_root, report_dir)]
+                examples_html(out_root, report_dir, products), figures_html(out_root, report_dir, products),
+                tables_html(out_root, report_dir, products), notebooks_html(report_dir, products),
+                release_html(out_root, report_dir)]
     ids = [("headline", "Headline"), ("paper", "ReSTI report vs measured"), ("exclusions", "Exclusions"),
-           ("figures", "Figures"), ("tables", "Tables"), ("notebooks", "Notebooks"), ("release", "Release files")]
+           ("examples", "Examples"), ("figures", "Figures"), ("tables", "Tables"), ("notebooks", "Notebooks"),
+           ("release", "Release files")]
     toc = " ".join(f'<a href="#{i}">{t}</a>' for (i, t), s in zip(ids, sections) if s)
     body = [f"<header id=\"run\"><h1>{_e(title)}</h1>{header_html(context)}</header>",
             f"<nav class=\"toc\">{toc}</nav>", *sections]
     doc = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-           f"<title>{_e(title)}</title><style>{CSS}</style></head><body>\n"
+           f"<title>{_e(title)}</title><style>{CSS}{EX_CSS}</style></head><body>\n"
            + "\n".join(b for b in body if b) + "\n</body></html>\n")
     atomic_write_bytes(index, doc.encode("utf-8"))
     return index
