@@ -21,6 +21,7 @@ import pandas as pd
 from .. import paths
 from ..io.files import atomic_write_bytes
 from ..io.tables import percent, to_html
+from .changes import changes_html
 from .examples import CSS as EX_CSS
 from .examples import card_html, cards_html, one_per_verdict
 from .figures import ordered_figures
@@ -56,6 +57,8 @@ ul.files{columns:2;font-size:.88em}ul.files li{break-inside:avoid}
 .status.na{background:#eee;color:#444}.status.leak{background:#fde7c4;color:#6b3e00}
 table.claims td.how{font-size:.92em;color:#444}table.claims .where{font-size:.85em;color:#777}
 p.verify-fail{background:#fdf0ee;border-left:3px solid #c0392b;padding:.3em .6em}
+#changes{background:#f6f9fd;border:1px solid #b9cde6;padding:.2em 1em 1em;margin-top:1.5em}
+ul.warnings li{background:#fff4e0;border-left:3px solid #e67e22;padding:.2em .5em;margin:.3em 0;list-style:none}
 """
 
 # Tables shown on the page, by section: (file stem under tables/, caption). Every other table is
@@ -530,11 +533,13 @@ def write_index(out_root: Path | None = None, *, title: str = "resti audit repor
     if context is None:
         context = ((_read_json(out_root / "release" / "release.json") or {}).get("run"))
     write_examples_page(out_root, report_dir, title, products)
-    sections = [headline_html(out_root), paper_html(out_root, report_dir), exclusions_html(out_root, report_dir),
+    sections = [changes_html(out_root, to_html=to_html, e=_e), headline_html(out_root),
+                paper_html(out_root, report_dir), exclusions_html(out_root, report_dir),
                 examples_html(out_root, report_dir, products), figures_html(out_root, report_dir, products),
                 tables_html(out_root, report_dir, products), notebooks_html(report_dir, products),
                 release_html(out_root, report_dir)]
-    ids = [("headline", "Headline"), ("paper", "ReSTI report vs measured"), ("exclusions", "Exclusions"),
+    ids = [("changes", "What changed"), ("headline", "Headline"), ("paper", "ReSTI report vs measured"),
+           ("exclusions", "Exclusions"),
            ("examples", "Examples"), ("figures", "Figures"), ("tables", "Tables"), ("notebooks", "Notebooks"),
            ("release", "Release files")]
     toc = " ".join(f'<a href="#{i}">{t}</a>' for (i, t), s in zip(ids, sections) if s)

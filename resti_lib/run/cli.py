@@ -119,7 +119,7 @@ def _cmd_synth(a) -> int:
 def _cmd_run(a) -> int:
     from .pipeline import run
 
-    return run(a.params, only=a.only, jobs=a.jobs, force=a.force)
+    return run(a.params, only=a.only, jobs=a.jobs, force=a.force, baseline=a.baseline)
 
 
 def _stage_help() -> str:
@@ -214,6 +214,9 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
                         "became stale; names are listed below")
     r.add_argument("--force", action="store_true", help="rerun every stage, up to date or not")
     r.add_argument("--jobs", type=int, default=None, help="parallel notebooks (default: cores)")
+    r.add_argument("--baseline", action="store_true",
+                   help="make this run the baseline the report's What changed section compares later runs with "
+                        "(default: the first run of the output folder)")
     r.set_defaults(fn=_cmd_run)
     return p
 
