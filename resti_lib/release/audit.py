@@ -242,11 +242,13 @@ def command_path(path: str | Path) -> str:
     return rel if len(rel) < len(str(p)) else str(p)
 
 
-def audit_summary(run: AttackRun, validation: dict, *, label: str, path: str | Path) -> dict:
+def audit_summary(run: AttackRun, validation: dict, *, label: str, path: str | Path, shown: str | None = None) -> dict:
     """What the report's headline and the run's summary read about an audited release: its path, the
     ``resti verify`` result (failing checks with their row counts) and the attack counts, with the
-    command lines that print the same."""
-    where = command_path(path)
+    command lines that print the same. ``shown``: how the commands name the release (default: its
+    path from the repository root; an output folder's own release is named relative to the folder, so
+    the same run written elsewhere gives the same bytes)."""
+    where = shown or command_path(path)
     failing = {k: int(c.get("n_failing", 0)) for k, c in (validation.get("checks") or {}).items()
                if c.get("status") == "fail"}
     c = run.counts

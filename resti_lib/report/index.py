@@ -79,8 +79,9 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("exclusion_reasons", "Exclusion reasons by task (a row can carry several)."),
     )),
     ("Answer interface", (
-        ("legacy_scalar_attacks", ("Blind attacks pooled over every legacy row with five scalar candidates "
-                                   "(all tasks together; e.g. the median pick).")),
+        ("scalar_attacks_before_after", ("Option-only attacks pooled over every row with five scalar candidates "
+                                         "(all tasks together; e.g. the median pick, 46.9% on STI-Bench in the ReSTI "
+                                         "report): the legacy options (before) and the release's (after).")),
         ("attacks_before_after", ("Strongest blind attack per task, legacy options (before) and our release "
                                   "(after).")),
     )),
@@ -257,8 +258,9 @@ def headline_html(out_root: Path) -> str:
     if ours is not None:
         summary = _read_json(tables / "audit_release.json") or {}
         cmd = (summary.get("attacks") or {}).get("command")
+        where = " (OUTPUT_DIR: this report's output folder)" if cmd and "OUTPUT_DIR" in cmd else ""
         parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release")
-                     + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>.</p>" if cmd else ""))
+                     + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>{where}.</p>" if cmd else ""))
     parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
     ref = reference_audit(out_root)
     if ref is None:
@@ -362,7 +364,8 @@ def exclusions_html(out_root: Path, report_dir: Path) -> str:
         from .statistics import EXCLUSION_RULE
 
         parts.append(f"<h3>Our release</h3><p><b>The same rule on our reason codes:</b> {_e(EXCLUSION_RULE)}.</p>"
-                     + to_html(ours, caption="Our exclusions by class."))
+                     + to_html(ours, caption="Our exclusions by class.")
+                     + f"<p class=\"more\">{_table_links(out_root / 'tables' / 'exclusion_classes.md', report_dir)}</p>")
     if not parts:
         return ""
     return "<section id=\"exclusions\"><h2>Exclusions explained</h2>" + "".join(parts) + "</section>"

@@ -326,6 +326,17 @@ def pooled_scalar_attacks(legacy: pd.DataFrame, *, alpha: float = 0.05) -> pd.Da
                                                    "significant"]].reset_index(drop=True))
 
 
+def pooled_before_after(before: pd.DataFrame, after: pd.DataFrame) -> pd.DataFrame:
+    """The pooled scalar attacks (:func:`pooled_scalar_attacks`) of the legacy rows (before) beside the
+    same attacks on the release's rows (after), in the order of the legacy table."""
+    cols = ["rows", "picked", "hits", "accuracy", "significant"]
+    b = before.set_index("attack")[cols] if len(before) else pd.DataFrame(columns=cols)
+    a = after.set_index("attack")[cols] if len(after) else pd.DataFrame(columns=cols)
+    m = b.add_suffix(" before").join(a.add_suffix(" after"), how="outer")
+    order = list(b.index) + [x for x in a.index if x not in b.index]
+    return m.reindex(order).reset_index().rename(columns={"index": "attack"})
+
+
 def release_coverage(accepted: pd.DataFrame, excluded: list[dict]) -> pd.DataFrame:
     """:func:`coverage_table` of any release (e.g. the reference one): accepted and excluded rows
     per task and source."""
