@@ -31,7 +31,7 @@ import yaml
 
 from .. import LETTERS
 from .. import values as V
-from ..errors import InputError
+from ..errors import InputError, RestiError
 from .exclusions import verdict_class
 
 CLAIMS_FILE = Path(__file__).with_name("paper_claims.yaml")
@@ -72,8 +72,9 @@ class Measured:
     how: str
 
 
-class NotCheckable(Exception):
-    """A measurement that cannot be made here (the message says why)."""
+class NotCheckable(RestiError):
+    """A measurement that cannot be made here (the message says why): the claim's status, never an
+    error of the run."""
 
 
 @dataclass
