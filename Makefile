@@ -6,7 +6,8 @@ STAMP := $(VENV)/.installed
 PARAMS ?= params/default.yaml
 PIP := $(BIN)/pip --disable-pip-version-check -q
 # `make report FORCE=1` reruns every stage (default: only the stages whose inputs, params or code changed)
-RUN_FLAGS := $(if $(FORCE),--force,)
+# `make report BASELINE=1` makes this run the baseline of the report's What changed section
+RUN_FLAGS := $(if $(FORCE),--force,) $(if $(BASELINE),--baseline,)
 
 .PHONY: help venv report reoption test test-fast bench bench-scale screenshot browser lint clean strip-notebooks
 

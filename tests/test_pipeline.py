@@ -53,10 +53,12 @@ def test_main_job_end_to_end(main_run, miniworld):
     rendered = {p.stem for p in (out / "report" / "notebooks").glob("*.html")}
     assert {s["notebook"] for s in cfg["stages"] if not s.get("on_demand")} <= rendered
     assert assert_links_resolve(out / "report" / "index.html") > 20
-    # no Holm-significant option-only attack on the rebuilt options, except the label prior of
-    # categorical answers (a property of the answers, not of the options)
+    # no Holm-significant option-only attack on the rebuilt options (the option rules and the learned
+    # option-only attacker), except the label prior of categorical answers (a property of the answers,
+    # not of the options); the table holds the whole suite of `resti attack`, whose other families
+    # (the same video's rows) are issue 19's
     att = pd.read_csv(out / "tables" / "attacks_release.csv")
-    sig = att[att["significant"] & (att["attack"] != "label_prior")]
+    sig = att[att["significant"] & (att["attack"] != "label_prior") & att["family"].isin(["option", "learned_option"])]
     assert sig.empty, sig.to_string()
 
 

@@ -32,7 +32,7 @@ def links_of(html_path: Path) -> list[str]:
 
 def assert_links_resolve(index: Path) -> int:
     refs = [r for r in links_of(index) if not re.match(r"^[a-z]+:", r) and not r.startswith("#")]
-    missing = [r for r in refs if not (index.parent / r).exists()]
+    missing = [r for r in refs if not (index.parent / r.split("#", 1)[0]).exists()]  # a file, then its anchor
     assert not missing, f"unresolved links in {index}: {missing}"
     return len(refs)
 
@@ -141,25 +141,68 @@ def test_key_detail_breakdown_by_cause():
         row(cands=five, answer="B", detail="Front"),                    # scalar vs label: format
         row(task="Pose Estimation", cands={**five, "B": pose}, answer="B", detail=pose2),  # structured
     ]
-    t = key_detail_breakdown(pd.DataFrame(rows)).set_index("cause")
-    by = {c.split(" ")[0]: n for c, n in t["rows"].items()}
+    t = key_detail_breakdown(pd.DataFrame(rows))
+    by = {c.split(" ")[0].rstrip(","): n for c, n in zip(t["cause"], t["rows"])}
     # 2.00 vs 2.03: the coarser printed place is 0.01 m, half of it 0.005 < 0.03 -> scalar disagreement
     assert by["structured"] == 1 and by["scalar"] == 2 and by["incompatible"] == 1 and by["same"] == 1
-    assert by["all"] == 5
-    assert t.loc["all keyed candidates differing from the detail text", "by task"] == "4 counted as key_detail_mismatch"
+    # the report's definition first: every keyed text that is not the detail text (5 rows, rounding in);
+    # ours last: the 4 whose values disagree or cannot be compared
+    assert t.iloc[0]["cause"].startswith("mismatches, the ReSTI report's definition") and t.iloc[0]["rows"] == 5
+    assert t.iloc[-1]["cause"].startswith("mismatches, our definition") and t.iloc[-1]["rows"] == 4
+    same = t[t["cause"].str.startswith("same")].iloc[0]
+    assert bool(same["ReSTI report's definition"]) and not bool(same["ours"])
 
 
 def test_exclusions_recoverable_or_structural():
     from resti_lib.report.statistics import exclusion_class_table
 
+    # recoverable: an ambiguous or unmatched referent; structural: a defective statement (an object not
+    # visible at the asked frame is one, whatever else the row says); a copy of a row is neither
     ex = [{"task": "Dimensional Measurement", "reason_codes": ["ambiguous_instance"]},
           {"task": "Dimensional Measurement", "reason_codes": ["not_visible_at_frame", "undefined_dimension"]},
+          {"task": "Dimensional Measurement", "reason_codes": ["grouped_referent"]},
           {"task": "Pose Estimation", "reason_codes": ["premise_equals_target"]},
-          {"task": "Displacement & Path Length", "reason_codes": ["zero_length_interval"]}]
+          {"task": "Displacement & Path Length", "reason_codes": ["zero_length_interval", "ambiguous_subject"]},
+          {"task": "Pose Estimation", "reason_codes": ["duplicate_row"]}]
     t = exclusion_class_table(ex).set_index("class")
-    assert t.loc["recoverable", "rows"] == 2 and t.loc["structural", "rows"] == 2
-    assert t.loc["recoverable", "share"] == 0.5
-    assert t.loc["structural", "by task"] == "Displacement & Path Length 1, Pose Estimation 1"
+    assert t.loc["recoverable", "rows"] == 2 and t.loc["structural", "rows"] == 3 and t.loc["other", "rows"] == 1
+    assert t.loc["recoverable", "share"] == pytest.approx(2 / 6)
+    assert t.loc["structural", "by task"] == "Dimensional Measurement 2, Pose Estimation 1"
+
+
+def test_one_exclusion_rule_for_ours_and_v5():
+    """Every v5 verdict of the glossary names one of our reason codes whose class is the verdict's."""
+    from resti_lib.defects import REASONS
+    from resti_lib.report.exclusions import glossary_spec
+    from resti_lib.report.statistics import exclusion_class
+
+    for verdict, entry in glossary_spec()["verdicts"].items():
+        assert entry["ours"] in REASONS, verdict
+        assert exclusion_class([entry["ours"]]) == entry["class"], verdict
+
+
+def test_v5_exclusion_split_by_the_stated_rule():
+    from resti_lib.report.exclusions import exclusion_glossary, exclusion_split
+
+    # hand-built: two verdicts of each class, one unverified row (structural by the rule), one unknown verdict
+    ex = [{"reason_codes": ["waymo_object_track_not_yet_reconstructed"],
+           "verification_verdict": "exclusion_confirmed_object_match_ambiguous"},
+          {"reason_codes": ["scannet_source_reconstruction_not_implemented"],
+           "verification_verdict": "exclusion_confirmed_no_source_instance"},
+          {"reason_codes": ["scannet_source_reconstruction_not_implemented"],
+           "verification_verdict": "exclusion_confirmed_group_referent_not_single_instance"},
+          {"reason_codes": ["waymo_object_track_not_yet_reconstructed"],
+           "verification_verdict": "exclusion_confirmed_degenerate_time_window"},
+          {"reason_codes": ["excluded_unresolved_grounding_target"]},
+          {"reason_codes": ["something_new"], "verification_verdict": "exclusion_confirmed_new"}]
+    t = exclusion_split(ex, paper={"recoverable": 2, "structural": 3}).set_index("class")
+    assert t.loc["recoverable", "rows"] == 2 and t.loc["structural", "rows"] == 3 and t.loc["unknown", "rows"] == 1
+    assert t.loc["structural", "ReSTI report"] == 3
+    g = exclusion_glossary(ex).set_index("code")
+    assert g.loc["scannet_source_reconstruction_not_implemented", "rows"] == 2
+    assert g.loc["something_new", "meaning"] == "(not in the glossary)"
+    assert g.loc["exclusion_confirmed_no_source_instance", "ours"].startswith("no_source_instance: ")
+    assert g.loc["(no verification verdict)", "rows"] == 1
 
 
 def test_pooled_scalar_attacks_median_pick():

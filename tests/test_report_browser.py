@@ -67,7 +67,20 @@ def test_index_opens_offline_with_header_headline_images_and_links(main_run, bro
         assert label in text, label
     assert "synthetic mini-world" in text and "Self-test on the mini-world" in text
     assert "Answer-interface audit of the reference release" in text
-    assert {"run", "headline", "figures", "tables", "notebooks", "release"} <= set(info["ids"])
+    assert {"run", "headline", "paper", "exclusions", "examples", "figures", "tables", "notebooks",
+            "release"} <= set(info["ids"])
+    assert "changes" not in info["ids"]  # the session run is its own baseline: nothing changed
+    # the panel: the report's claims on v5 with their status (real data), near the top
+    assert "The ReSTI report against what we measure" in text
+    assert info["ids"].index("paper") < info["ids"].index("figures")
+    if (main_run.out / "answer_interface" / "paper_claims_v5.csv").exists():
+        assert "20.5% (38/185)" in text and "38/185 = 20.5%" in text and "leak not in the report" in text
+    assert "not checkable here" in text
+    # one example of each verdict, legacy beside repaired, and the page of every task's examples
+    examples = text.split("Before and after: examples", 1)[1].split("\nFigures\n", 1)[0]
+    for verdict in ("retained", "corrected", "re-contracted", "excluded"):
+        assert verdict in examples, verdict
+    assert "Legacy (STI-Bench)" in examples and "Repaired (ours)" in examples and "Source evidence" in examples
     figures = list((main_run.out / "figures").glob("*.png"))
     assert len(info["images"]) == len(figures) > 5
     # figures are drawn for the page width: the overview fills the content column
@@ -83,3 +96,42 @@ def test_rendered_notebook_opens_offline_and_links_back(main_run, browser):
     assert back, "no link back to the report index"
     assert "99 · Release and report" in info["text"]
     assert info["images"] and all(i["ok"] for i in info["images"])
+
+
+def test_examples_page_opens_offline_with_every_task(main_run, browser):
+    from resti_lib.tasks import names
+
+    page = main_run.out / "report" / "examples.html"
+    info = _inspect(browser, page)
+    _assert_page_sound(info, page)
+    assert any(u.endswith("/report/index.html") for u in info["links"])
+    for task in names():
+        assert task in info["text"], task
+
+
+def test_what_changed_section_when_params_change(main_run, miniworld, browser, tmp_path):
+    """One task's tolerance edited: the report opens with the What changed section, offline, sound."""
+    import re
+    import shutil
+
+    import yaml
+
+    from resti_lib import paths
+    from tests.conftest import main_params, run_cli
+
+    text = (paths.PARAMS / "dimensional.yaml").read_text()
+    dim = tmp_path / "dimensional.yaml"
+    dim.write_text(re.sub(r"^rule: \{abs_tol: 0\.002,", "rule: {abs_tol: 0.3,", text, flags=re.MULTILINE))
+    out = tmp_path / "outputs"
+    shutil.copytree(main_run.out, out)
+    params = tmp_path / "edited.yaml"
+    params.write_text(yaml.safe_dump(main_params(miniworld, out, stage_params={"03_dimensional": dim})))
+    r = run_cli(["run", "--params", str(params)])
+    assert r.returncode == 0, r.stderr[-3000:]
+    index = out / "report" / "index.html"
+    info = _inspect(browser, index)
+    _assert_page_sound(info, index)
+    assert info["ids"].index("changes") < info["ids"].index("headline")  # first, above the headline
+    section = info["text"].split("What changed", 2)[2].split("Headline", 1)[0]
+    assert "rule.abs_tol" in section and "0.002" in section and "0.3" in section and "03_dimensional" in section
+    assert "no_valid_options" in section and "rows changed" in section

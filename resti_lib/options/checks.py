@@ -305,16 +305,24 @@ def _separation(p: ParsedRow):
     msgs = []
     if kind in ("scalar", "angle", "trajectory"):
         if kind == "trajectory":
-            xs = sorted((v.total_distance for v in vals if v.segments), key=float)
+            # like with like: the totals of two descriptions of one shape (the same moves and turn
+            # directions); a straight path and a turning one are told apart by their shape
+            shapes: dict = {}
+            for v in vals:
+                if v.segments:
+                    shapes.setdefault(v.structure, []).append(v.total_distance)
+            runs = [sorted(x) for x in shapes.values()]
         else:
-            xs = sorted(v.value for v in vals)
+            runs = [sorted(v.value for v in vals)]
         rel = params["separation"]["trajectory" if kind == "trajectory" else "scalar"]["min_rel_gap"] \
             if kind != "angle" else 0.0
-        for a, b in zip(xs, xs[1:]):
-            need = angle_gap(spec, params) if kind == "angle" else (
-                scalar_gap(spec, params, b) if kind == "scalar" else 0.0)
-            if b - a < need - 1e-9 or (rel and b - a < rel * abs(b) - 1e-12):
-                msgs.append(f"{a:g} and {b:g} closer than the floor")
+        for xs in runs:
+            for a, b in zip(xs, xs[1:]):
+                need = angle_gap(spec, params) if kind == "angle" else (
+                    scalar_gap(spec, params, b) if kind == "scalar" else 0.0)
+                if b - a < need - 1e-9 or (rel and b - a < rel * abs(b) - 1e-12):
+                    msgs.append(f"{a:g} and {b:g} closer than the floor")
+        xs = runs[0]
         if kind == "angle" and len(xs) > 1 and xs[0] + 360.0 - xs[-1] < angle_gap(spec, params) - 1e-9:
             msgs.append(f"{xs[0]:g} and {xs[-1]:g} closer than the floor across ±180")
     elif kind in ("box", "pose"):

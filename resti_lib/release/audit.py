@@ -1,35 +1,158 @@
 """The answer-interface audit of one release: structural checks + the blind attack suite, written out.
 
-Used by ``notebooks/00_answer_interface.ipynb`` and ``resti attack``/``resti verify``. The attack table
+:func:`attack_release` is the one attack of a release folder: ``resti attack``, notebook 00 (its
+headline and figure), notebook 99 (the table of our release) and the closing summary of ``resti run``
+all run it, so they count the same tests on the same rows under one Holm family
+(:data:`SUITE`: every family, the learned attackers with their default settings). The attack table
 (:func:`resti_lib.options.attacks.attack_table`) has one row per (attack, task, source); its headline
 (:func:`resti_lib.options.attacks.headline`) one row per task/source cell, significant cells first, with
-the power of the test where nothing is significant.
+the power of the test where nothing is significant. :func:`attack_counts` gives the numbers every
+place prints, in one sentence.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import os
+import re
+import shlex
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
 
-from ..io.benchmark import load_release
+from .. import LETTERS, paths
+from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
-from ..options.attacks import attack_table, headline, select, strongest
+from ..options.attacks import attack_table, headline, select
 from ..tasks import interface
 from ..tasks import names as task_names
-from .verify import verify_release
+from .verify import release_interface, verify_release
 
-# Reference figures of the report for the rebuilt v5 options (section "Repair: regenerated
-# Orientation choices" and the Grounding repair): value, hits, rows.
-PAPER_REFERENCE = {
-    ("Ego-Centric Orientation", "median"): (37, 185),
-    ("Ego-Centric Orientation", "best fixed signed-value rank"): (38, 185),
-    ("3D Video Grounding", "strongest full-coverage attack"): (71, 314),
-}
-RANK_ATTACKS = ("min", "rank_2", "median", "rank_4", "max")
+#: The suite every place runs on a release (``resti attack`` without options): every family, the
+#: learned attackers with their default settings, Holm's correction at ``alpha`` over the whole table.
+SUITE = {"families": "all", "fast": False, "attacks": "all", "alpha": 0.05}
+
+@dataclass(frozen=True)
+class AttackCounts:
+    """What every place prints about one attack table."""
+
+    tests: int               # rows of the table (attack x task x source, ALL included): the Holm family
+    significant: int         # Holm-significant rows
+    cells: int               # task/source cells (ALL pools a task's sources)
+    significant_cells: int   # cells with at least one Holm-significant row
+
+    def sentence(self, *, bold: bool = False) -> str:
+        """``S of C task/source cells have a Holm-significant blind attack (s of T tests)``: the words
+        ``resti attack``, the report and the run's summary print (``bold``: markdown bold on the cells)."""
+        b = "**" if bold else ""
+        return (f"{b}{self.significant_cells} of {self.cells} task/source cells have a Holm-significant blind "
+                f"attack{b} ({self.significant} of {self.tests} tests)")
+
+
+def _significant_mask(table: pd.DataFrame) -> pd.Series:
+    """The ``significant`` column as booleans, from a table in memory or read back from its CSV."""
+    return table["significant"].astype(str).str.lower() == "true"
+
+
+def attack_counts(table: pd.DataFrame | None) -> AttackCounts:
+    """Counts of an attack table (in memory or read from its CSV)."""
+    if table is None or len(table) == 0:
+        return AttackCounts(0, 0, 0, 0)
+    sig = _significant_mask(table)
+    cells = table[["task", "source"]].drop_duplicates()
+    sig_cells = table.loc[sig, ["task", "source"]].drop_duplicates()
+    return AttackCounts(len(table), int(sig.sum()), len(cells), len(sig_cells))
+
+
+def attack_rows(rel: Release) -> tuple[list[dict], dict]:
+    """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
+    a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
+    is not finite or not physically possible)."""
+    from ..options.checks import ROW_CHECKS, parse_row
+
+    bad: dict = {}
+    for p in rel.problems:
+        if p.file is not None and rel.accepted_file is not None and p.file == str(rel.accepted_file):
+            bad.setdefault(p.row, f"{p.field}: {p.message}")
+    usable = []
+    for i, r in enumerate(rel.accepted.to_dict("records")):
+        rid = next((r[c] for c in ("ReSTI ID", "Legacy Row Key") if isinstance(r.get(c), str) and r[c].strip()), i)
+        if rid in bad:
+            continue
+        pr = parse_row(r, rid)
+        if pr.errors:
+            bad[rid] = "; ".join(f"Candidates.{k}: {m}" for k, m in sorted(pr.errors.items()))
+        elif not pr.complete:
+            bad[rid] = f"Candidates: letters {sorted(pr.candidates)}, expected A-E"
+        elif pr.answer not in LETTERS:
+            bad[rid] = f"Answer: {pr.answer!r} is not a letter A-E"
+        elif msg := ROW_CHECKS["finite_values"](pr) or ROW_CHECKS["value_ranges"](pr):
+            bad[rid] = msg
+        else:
+            usable.append(r)
+    return usable, bad
+
+
+@dataclass
+class AttackRun:
+    """The blind attack suite on one release: the table, the rows left out and the suite that ran."""
+
+    release: Release
+    table: pd.DataFrame
+    skipped: dict = field(default_factory=dict)   # row id -> why it could not be attacked
+    suite: dict = field(default_factory=dict)     # families, fast, attacks, alpha
+
+    @property
+    def headline(self) -> pd.DataFrame:
+        return headline(self.table)
+
+    @property
+    def counts(self) -> AttackCounts:
+        return attack_counts(self.table)
+
+    def command(self, path: str) -> str:
+        """The ``resti attack`` command line that prints these counts for ``path``."""
+        return suite_command(path, self.suite)
+
+
+def suite_command(path: str, suite: dict) -> str:
+    """``resti attack PATH`` with the options that differ from :data:`SUITE`."""
+    args = ["resti", "attack", path]
+    fams = suite.get("families", "all")
+    if fams not in (None, "all"):
+        args += ["--families", *([fams] if isinstance(fams, str) else list(fams))]
+    atts = suite.get("attacks", "all")
+    if atts not in (None, "all"):
+        args += ["--attacks", *([atts] if isinstance(atts, str) else list(atts))]
+    if suite.get("fast"):
+        args.append("--fast")
+    if float(suite.get("alpha", SUITE["alpha"])) != SUITE["alpha"]:
+        args += ["--alpha", f"{suite['alpha']:g}"]
+    return " ".join(shlex.quote(a) for a in args)
+
+
+def attack_release(release: str | Path | Release, *, families="all", attacks="all", fast: bool = False,
+                   alpha: float = SUITE["alpha"], progress: bool = False) -> AttackRun:
+    """The blind attack suite on a release folder (or accepted-rows file, or a loaded release): the
+    rows an attack can read (:func:`attack_rows`; the others are listed in ``skipped``), the answer
+    interface the release records (:func:`resti_lib.release.verify.release_interface`), the
+    ``families`` (or ``attacks``) of the suite with the learned attackers at their default settings
+    unless ``fast``, and Holm's correction at ``alpha`` over every row of the table. Unknown family or
+    attack names raise ``ValueError``."""
+    names = select(None if families in (None, "all") else families,
+                   None if attacks in (None, "all", ["all"]) else attacks, fast=fast)
+    rel = release if isinstance(release, Release) else load_release(release, strict=False, known_tasks=task_names())
+    records, skipped = attack_rows(rel)
+    iface = release_interface(rel)[0]
+    table = attack_table(records, iface=iface, families="all", attacks=names, alpha=alpha, progress=progress) \
+        if records else pd.DataFrame(columns=["attack", "family", "task", "source", "n_rows", "coverage", "picked",
+                                              "hits", "accuracy", "chance", "p_value", "p_holm", "significant",
+                                              "min_detectable", "underpowered"])
+    suite = {"families": families if families not in (None, ["all"]) else "all", "fast": bool(fast),
+             "attacks": attacks if attacks not in (None, ["all"]) else "all", "alpha": alpha}
+    return AttackRun(rel, table, skipped, suite)
 
 
 @dataclass
@@ -38,6 +161,7 @@ class AuditResult:
     validation: dict
     attacks: pd.DataFrame
     files: list[Path]
+    run: AttackRun | None = None
 
     @property
     def headline(self) -> pd.DataFrame:
@@ -50,17 +174,19 @@ def select_attacks(spec, families="all", *, fast: bool = False) -> list[str]:
     return select(families, None if spec in (None, "all") else spec, fast=fast)
 
 
-def format_headline(head: pd.DataFrame, *, alpha: float, tests: int) -> str:
-    """The headline as markdown: a sentence with the count of significant cells, then one table row per
+HEADLINE_SHOWN = ("task", "source", "n_rows", "significant", "attack", "family", "accuracy", "p_value", "p_holm",
+                  "significant_attacks", "families", "min_detectable", "underpowered", "large_effect")
+
+
+def format_headline(head: pd.DataFrame, *, alpha: float, counts: AttackCounts) -> str:
+    """The headline as markdown: the counts (:meth:`AttackCounts.sentence`), then one table row per
     task/source cell (significant cells first) with the strongest attack, its accuracy and p-values,
     and the smallest blind accuracy the test detects there (80% power)."""
-    n_sig = int(head["significant"].sum()) if len(head) else 0
-    lines = [(f"**{n_sig} of {len(head)} task/source cells have a Holm-significant blind attack** "
-              f"(alpha {alpha}, {tests} tests; `min_detectable`: smallest blind accuracy detected with 80% "
-              "power at the cell's n; underpowered: cannot detect 35%).")]
+    lines = [(f"{counts.sentence(bold=True)}; Holm alpha {alpha} over the {counts.tests} tests; "
+              "`min_detectable`: smallest blind accuracy detected with 80% power at the cell's n; "
+              "underpowered: cannot detect 35%.")]
     if len(head):
-        shown = head[["task", "source", "n_rows", "significant", "attack", "family", "accuracy", "p_value", "p_holm",
-                      "significant_attacks", "families", "min_detectable", "underpowered"]].copy()
+        shown = head[[c for c in HEADLINE_SHOWN if c in head.columns]].copy()
         shown["accuracy"] = shown["accuracy"].map(lambda x: f"{x:.3f}")
         shown["min_detectable"] = shown["min_detectable"].map(lambda x: f"{x:.3f}")
         for c in ("p_value", "p_holm"):
@@ -69,52 +195,101 @@ def format_headline(head: pd.DataFrame, *, alpha: float, tests: int) -> str:
     return "\n".join(lines)
 
 
-def audit_release(release: str | Path, *, label: str, out_dir: str | Path, alpha: float = 0.05,
-                  attacks="all", families="all", fast: bool = False, learned=None,
-                  groups: dict | None = None) -> AuditResult:
-    """Verify and attack one release with the blind suite (``families``, ``fast``: see
-    :func:`attacks.attack_table`); write ``validation_<label>.json``, ``attacks_<label>.*`` and
-    ``attacks_<label>_headline.*``."""
+def verify_failures(validation: dict, rel: Release) -> pd.DataFrame:
+    """One row per (failing check, row) of a validation object, with the row's task, source, video,
+    question, candidates and answer beside the check's message: the rows behind a FAILED verify."""
+    rows = rel.accepted.to_dict("records")
+    by_id: dict = {}
+    for i, r in enumerate(rows):
+        for c in ("ReSTI ID", "Legacy Row Key"):
+            if isinstance(r.get(c), str):
+                by_id.setdefault(r[c], r)
+        by_id.setdefault(i, r)
+    out = []
+    for name, check in (validation.get("checks") or {}).items():
+        if check.get("status") != "fail":
+            continue
+        messages = check.get("messages") or {}
+        for rid in check.get("failing") or []:
+            r = by_id.get(rid, {})
+            cands = r.get("Candidates")
+            out.append({"check": name, "row": rid, "task": r.get("Task"), "source": r.get("Source"),
+                        "video": r.get("Video"), "message": messages.get(rid, ""),
+                        "question": r.get("Question"),
+                        "candidates": json.dumps(cands, ensure_ascii=False) if isinstance(cands, dict) else cands,
+                        "answer": r.get("Answer")})
+    return pd.DataFrame(out, columns=["check", "row", "task", "source", "video", "message", "question", "candidates",
+                                      "answer"])
+
+
+def release_label(rel: Release) -> str:
+    """A file-name label for a release: ``<name>_<version>`` from its ``release.json`` (the public
+    ReSTI v5: ``resti_v5``), else ``release``."""
+    meta = rel.meta if isinstance(rel.meta, dict) else {}
+    name, version = meta.get("name"), meta.get("version")
+    if isinstance(name, str) and isinstance(version, str) and name.strip() and version.strip():
+        return re.sub(r"[^a-z0-9]+", "_", f"{name}_{version}".lower()).strip("_")
+    return "release"
+
+
+def command_path(path: str | Path) -> str:
+    """How a command run from the repository root names ``path`` (relative when that is shorter)."""
+    p = Path(path).resolve()
+    try:
+        rel = os.path.relpath(p, paths.ROOT)
+    except ValueError:
+        return str(p)
+    return rel if len(rel) < len(str(p)) else str(p)
+
+
+def audit_summary(run: AttackRun, validation: dict, *, label: str, path: str | Path, shown: str | None = None) -> dict:
+    """What the report's headline and the run's summary read about an audited release: its path, the
+    ``resti verify`` result (failing checks with their row counts) and the attack counts, with the
+    command lines that print the same. ``shown``: how the commands name the release (default: its
+    path from the repository root; an output folder's own release is named relative to the folder, so
+    the same run written elsewhere gives the same bytes)."""
+    where = shown or command_path(path)
+    failing = {k: int(c.get("n_failing", 0)) for k, c in (validation.get("checks") or {}).items()
+               if c.get("status") == "fail"}
+    c = run.counts
+    return {"label": label, "release": where, "verify": {"passed": bool(validation.get("passed")),
+                                                         "failing": failing,
+                                                         "command": f"resti verify {shlex.quote(where)}"},
+            "attacks": {"tests": c.tests, "significant": c.significant, "cells": c.cells,
+                        "significant_cells": c.significant_cells, "sentence": c.sentence(),
+                        "skipped_rows": len(run.skipped), "suite": run.suite, "command": run.command(where)}}
+
+
+def write_audit_summary(path: str | Path, summary: dict) -> Path:
+    """Write an :func:`audit_summary` as JSON (sorted as built, UTF-8, trailing newline)."""
+    atomic_write_bytes(Path(path), (json.dumps(summary, indent=2, ensure_ascii=False) + "\n").encode())
+    return Path(path)
+
+
+def audit_release(release: str | Path, *, out_dir: str | Path, label: str | None = None,
+                  alpha: float = SUITE["alpha"], attacks="all", families="all", fast: bool = False) -> AuditResult:
+    """Verify and attack one release with the blind suite (:func:`attack_release`); write
+    ``validation_<label>.json``, ``verify_failures_<label>.*`` (the rows of every failing check),
+    ``attacks_<label>.*``, ``attacks_<label>_headline.*`` and ``audit_<label>.json``
+    (:func:`audit_summary`). ``label`` defaults to :func:`release_label`."""
     out_dir = Path(out_dir)
     rel = load_release(release, strict=False, known_tasks=task_names())
+    label = label or release_label(rel)
     validation = verify_release(rel)
-    names = select_attacks(attacks, families, fast=fast or learned is False)
-    table = attack_table(rel.accepted.to_dict("records"), iface=interface(), families="all", attacks=names, alpha=alpha,
-                         learned=learned, groups=groups, progress=True)
+    run = attack_release(rel, families=families, attacks=attacks, fast=fast, alpha=alpha, progress=True)
+    table = run.table
     files = [out_dir / f"validation_{label}.json"]
     atomic_write_bytes(files[0], (json.dumps(validation, indent=2, ensure_ascii=False) + "\n").encode())
+    files += write_table(verify_failures(validation, rel), out_dir / f"verify_failures_{label}",
+                         caption=f"resti verify on {label}: the rows of every failing check")
     files += write_table(table, out_dir / f"attacks_{label}",
                          caption=f"Blind attacks on {label} (Holm alpha={alpha} over {len(table)} rows)")
     files += write_table(headline(table), out_dir / f"attacks_{label}_headline",
                          caption=f"Blind attacks on {label}: strongest attack per task/source cell, significant "
                          "cells first, with the smallest blind accuracy detectable at 80% power")
-    return AuditResult(label, validation, table, files)
-
-
-def paper_comparison(table: pd.DataFrame) -> pd.DataFrame:
-    """Our figures beside the report's for the rebuilt ReSTI v5 options."""
-    rows = []
-    if "family" in table.columns:  # the report's figures are option-only attacks
-        table = table[table["family"] == "option"]
-    o = table[(table["task"] == "Ego-Centric Orientation") & (table["source"] == "ALL")]
-    if not o.empty:
-        med = o[o["attack"] == "median"].iloc[0]
-        ranks = o[o["attack"].isin(RANK_ATTACKS)].sort_values("hits", ascending=False, kind="stable").iloc[0]
-        rows.append(("Ego-Centric Orientation", "median", int(med["hits"]), int(med["picked"])))
-        rows.append(("Ego-Centric Orientation", "best fixed signed-value rank",
-                     int(ranks["hits"]), int(ranks["picked"]), ranks["attack"]))
-    g = strongest(table, "3D Video Grounding")
-    if g is not None:
-        rows.append(("3D Video Grounding", "strongest full-coverage attack", int(g["hits"]), int(g["picked"]),
-                     g["attack"]))
-    out = []
-    for r in rows:
-        task, what, hits, n = r[:4]
-        ph, pn = PAPER_REFERENCE[(task, what)]
-        out.append({"task": task, "figure": what, "attack": r[4] if len(r) > 4 else what,
-                    "ours": f"{hits}/{n} = {hits / n:.2%}", "report": f"{ph}/{pn} = {ph / pn:.2%}",
-                    "same": (hits, n) == (ph, pn)})
-    return pd.DataFrame(out)
+    files.append(write_audit_summary(out_dir / f"audit_{label}.json",
+                                     audit_summary(run, validation, label=label, path=release)))
+    return AuditResult(label, validation, table, files, run)
 
 
 def audit_legacy(legacy: str | Path, *, out_dir: str | Path, alpha: float = 0.05, attacks="all",

@@ -21,6 +21,9 @@ import pandas as pd
 from .. import paths
 from ..io.files import atomic_write_bytes
 from ..io.tables import percent, to_html
+from .changes import changes_html
+from .examples import CSS as EX_CSS
+from .examples import card_html, cards_html, one_per_verdict
 from .figures import ordered_figures
 
 CSS = """
@@ -49,6 +52,13 @@ p.caption{font-size:.88em;color:#444;margin:.8em 0 .2em}p.more{font-size:.8em;co
 figure{margin:1.2em 0 2em;max-width:100%}figure img{display:block;max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:.88em;color:#444;margin-top:.3em}figcaption .file{color:#888;font-size:.9em}
 ul.files{columns:2;font-size:.88em}ul.files li{break-inside:avoid}
+.status{display:inline-block;font-size:.85em;font-weight:600;padding:0 .4em;border-radius:3px;white-space:nowrap}
+.status.ok{background:#d8eedd;color:#14532d}.status.bad{background:#f8d7d3;color:#7a1a10}
+.status.na{background:#eee;color:#444}.status.leak{background:#fde7c4;color:#6b3e00}
+table.claims td.how{font-size:.92em;color:#444}table.claims .where{font-size:.85em;color:#777}
+p.verify-fail{background:#fdf0ee;border-left:3px solid #c0392b;padding:.3em .6em}
+#changes{background:#f6f9fd;border:1px solid #b9cde6;padding:.2em 1em 1em;margin-top:1.5em}
+ul.warnings li{background:#fff4e0;border-left:3px solid #e67e22;padding:.2em .5em;margin:.3em 0;list-style:none}
 """
 
 # Tables shown on the page, by section: (file stem under tables/, caption). Every other table is
@@ -66,13 +76,12 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("answer_layer_defects", "Answer-layer defects by task (rows)."),
     )),
     ("Exclusions", (
-        ("exclusion_classes", ("Exclusions by class: recoverable (ambiguous or unmatched referents) and "
-                               "structural (defective task statements).")),
         ("exclusion_reasons", "Exclusion reasons by task (a row can carry several)."),
     )),
     ("Answer interface", (
-        ("legacy_scalar_attacks", ("Blind attacks pooled over every legacy row with five scalar candidates "
-                                   "(all tasks together; e.g. the median pick).")),
+        ("scalar_attacks_before_after", ("Option-only attacks pooled over every row with five scalar candidates "
+                                         "(all tasks together; e.g. the median pick, 46.9% on STI-Bench in the ReSTI "
+                                         "report): the legacy options (before) and the release's (after).")),
         ("attacks_before_after", ("Strongest blind attack per task, legacy options (before) and our release "
                                   "(after).")),
     )),
@@ -80,14 +89,13 @@ SHOWN_TABLES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
         ("reference_comparison", "Accepted and excluded per task: our release beside the reference."),
         ("reference_by_source", "Reference release: accepted and excluded per task and source."),
         ("reference_exclusion_reasons", "Reference release: exclusion reasons by task."),
-        ("reference_strongest_attacks", "Reference release: strongest blind attack per task."),
     )),
     ("Self-test on the mini-world (synthetic)", (
         ("selftest_verdicts", "Expected verdict (generator manifest) against the audit's verdict."),
         ("selftest_values", "Accepted rows whose answer equals the generator's true value."),
     )),
 )
-HEADLINE_TABLES = ("defect_categories", "selftest_defect_recall")
+HEADLINE_TABLES = ("defect_categories", "selftest_defect_recall", "exclusion_classes", "paper_claims_legacy")
 
 
 def _rel(target: Path, base: Path) -> str:
@@ -168,27 +176,63 @@ def _verdict_shares(tables: Path) -> str:
     return to_html(df, caption="Verdict shares (every legacy row ends in exactly one verdict).")
 
 
-def _leaks(table: pd.DataFrame | None, what: str) -> str:
+def release_attack_counts(out_root: Path):
+    """The attack counts of our release (:func:`resti_lib.release.audit.attack_counts` of
+    ``tables/attacks_release.csv``), or None before notebook 99 wrote it."""
+    from ..release.audit import attack_counts
+
+    table = _read_csv(Path(out_root) / "tables" / "attacks_release.csv")
+    return None if table is None or "significant" not in table else attack_counts(table)
+
+
+def reference_audit(out_root: Path) -> dict | None:
+    """The audit summary notebook 00 wrote for the reference release (``answer_interface/audit_<label>.json``,
+    :func:`resti_lib.release.audit.audit_summary`), or None (no reference audited: notebook 00 audits our
+    own release, label ``release``, when the reference is absent)."""
+    for p in sorted((Path(out_root) / "answer_interface").glob("audit_*.json")):
+        s = _read_json(p)
+        if isinstance(s, dict) and s.get("label") not in (None, "release") and "attacks" in s:
+            return s
+    return None
+
+
+def _leaks(table: pd.DataFrame | None, what: str, counts=None) -> str:
+    """The attack counts (the sentence ``resti attack`` prints) and the significant rows, strongest first."""
+    from ..release.audit import attack_counts
+
     if table is None or "significant" not in table:
         return f"<p>No attack table for {what}.</p>"
+    counts = counts or attack_counts(table)
     sig = table[table["significant"].astype(str) == "True"].copy()
-    cells = table[["task", "source"]].drop_duplicates()
-    n_sig_cells = len(sig[["task", "source"]].drop_duplicates())
-    head = (f"<p><b>{len(sig)}</b> of {len(table):,} attack rows are Holm-significant, in {n_sig_cells} of "
-            f"{len(cells)} task/source cells (source ALL pools a task).</p>")
+    head = f"<p class=\"counts\">{_e(counts.sentence())}.</p>"
     if sig.empty:
         return head
     sig = sig.sort_values(["accuracy", "hits"], ascending=False, kind="stable")
     shown = pd.DataFrame({"task": sig["task"], "source": sig["source"], "attack": sig["attack"],
-                          "hits / picked": [f"{int(h)}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
+                          "family": sig["family"],
+                          "hits / picked": [f"{h:g}/{int(p)}" for h, p in zip(sig["hits"], sig["picked"])],
                           "accuracy": sig["accuracy"].astype(float), "p_value": sig["p_value"].astype(float)})
-    return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%).",
-                          max_rows=25)
+    return head + to_html(shown, caption=f"Significant leaks of {what}, strongest first (chance 20%; the whole "
+                          "table is linked under Tables).", max_rows=10)
+
+
+def _verify_line(verify: dict, failures: Path | None, report_dir: Path) -> str:
+    """``resti verify``: PASSED, or FAILED with the failing checks and their rows one click away."""
+    if verify.get("passed"):
+        return f"<p><code>{_e(verify.get('command', 'resti verify'))}</code>: <b>PASSED</b>.</p>"
+    checks = ", ".join(f"<code>{_e(k)}</code> {n} rows" for k, n in (verify.get("failing") or {}).items())
+    link = ""
+    if failures is not None and failures.with_suffix(".csv").exists():
+        link = (f" The failing rows, with their question, candidates and the check's message: "
+                f"{_table_links(failures.with_suffix('.md'), report_dir)}.")
+    return (f"<p class=\"verify-fail\"><code>{_e(verify.get('command', 'resti verify'))}</code>: <b>FAILED</b> "
+            f"({checks}).{link}</p>")
 
 
 def headline_html(out_root: Path) -> str:
     tables = out_root / "tables"
     rel = out_root / "release"
+    report_dir = out_root / "report"
     parts = ["<h3>Our release</h3>"]
     meta = _read_json(rel / "release.json")
     val = _read_json(rel / "validation.json")
@@ -212,21 +256,168 @@ def headline_html(out_root: Path) -> str:
                                            " shares of the reports)."))
     ours = _read_csv(tables / "attacks_release.csv")
     if ours is not None:
-        parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release"))
-    ref = _read_csv(tables / "reference_attacks.csv")
-    if ref is None:
-        ref = _read_csv(out_root / "answer_interface" / "attacks_resti_v5.csv")
+        summary = _read_json(tables / "audit_release.json") or {}
+        cmd = (summary.get("attacks") or {}).get("command")
+        where = " (OUTPUT_DIR: this report's output folder)" if cmd and "OUTPUT_DIR" in cmd else ""
+        parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release")
+                     + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>{where}.</p>" if cmd else ""))
     parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
-    parts.append(_leaks(ref, "the reference release") if ref is not None else
-                 "<p>No reference release was found (<code>reference_release</code> in params/release.yaml).</p>")
+    ref = reference_audit(out_root)
+    if ref is None:
+        parts.append("<p>No reference release was audited (<code>release_path</code> in "
+                     "params/answer_interface.yaml).</p>")
+    else:
+        ai = out_root / "answer_interface"
+        label = ref["label"]
+        parts.append(f"<p>Release <code>{_e(ref['release'])}</code>.</p>")
+        parts.append(_verify_line(ref["verify"], ai / f"verify_failures_{label}", report_dir))
+        parts.append(_leaks(_read_csv(ai / f"attacks_{label}.csv"), "the reference release")
+                     + f"<p class=\"more\">The same counts: <code>{_e(ref['attacks']['command'])}</code>.</p>")
     recall = _read_csv(tables / "selftest_defect_recall.csv")
     if recall is not None:
-        parts.append("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">"
-                     "synthetic</span></h3><p>What the audit found against what the generator injected (its "
-                     "manifest). This checks the audit on generated data with known defects; it is not a "
-                     "result on STI-Bench.</p>" + to_html(recall, caption="Defect recall and precision against "
-                                                                           "the generator's manifest.") + "</div>")
+        parts.append(selftest_html(recall))
     return "<section id=\"headline\"><h2>Headline</h2>" + "".join(p for p in parts if p) + "</section>"
+
+
+SELFTEST_TEXT = (
+    "What the audit found against what the generator injected (its manifest). <b>What it shows:</b> on "
+    "data with known defects, the audit finds the defects it was built to find, gives the verdicts the "
+    "generator expected and recomputes the true values, so a change that breaks a detector shows here. "
+    "<b>What it does not show:</b> the generator and the audit are written by the same project from the same "
+    "reading of the ReSTI report, so 100% here means the two agree with each other, not that either is right "
+    "about STI-Bench; defects nobody thought of are neither injected nor found; the mini-world is small and "
+    "clean beside real sources. It is not a result on STI-Bench: the reference release above is.")
+
+
+def selftest_html(recall: pd.DataFrame) -> str:
+    return ("<div class=\"selftest\"><h3>Self-test on the mini-world <span class=\"label synthetic\">synthetic"
+            f"</span></h3><p>{SELFTEST_TEXT}</p>"
+            + to_html(recall, caption="Defect recall and precision against the generator's manifest.") + "</div>")
+
+
+# ------------------------------------------------------------------- the ReSTI report, measured
+
+STATUS_CLASS = {"reproduced": "ok", "not reproduced": "bad", "not checkable here": "na", "leak not in the report": "leak"}
+
+
+def _claims(out_root: Path) -> pd.DataFrame | None:
+    from .paper import panel
+
+    frames = [_read_csv(out_root / "answer_interface" / "paper_claims_v5.csv"),
+              _read_csv(out_root / "tables" / "paper_claims_legacy.csv")]
+    if all(f is None for f in frames):
+        return None
+    return panel(*[f.fillna("") if f is not None else None for f in frames])
+
+
+def paper_html(out_root: Path, report_dir: Path) -> str:
+    """The panel: every quantitative claim of the ReSTI report we can check, the figure we measure and
+    its status, then the leaks of v5 the report does not mention."""
+    from .paper import STATUSES, status_counts
+
+    df = _claims(out_root)
+    if df is None:
+        return ""
+    n = status_counts(df)
+    summary = ", ".join(f"<span class=\"status {STATUS_CLASS[s]}\">{n[s]} {_e(s)}</span>" for s in STATUSES if n[s])
+    rows = []
+    for r in df.itertuples(index=False):
+        cls = STATUS_CLASS.get(r.status, "na")
+        rows.append(f"<tr class=\"{cls}\"><td>{_e(r.claim)}<br><span class=\"where\">{_e(r.section)}</span></td>"
+                    f"<td>{_e(r[3])}</td><td>{_e(r.measured)}</td>"
+                    f"<td><span class=\"status {cls}\">{_e(r.status)}</span></td><td class=\"how\">{_e(r.how)}</td></tr>")
+    links = " · ".join(_table_links(p.with_suffix(".md"), report_dir) for p in
+                       (out_root / "answer_interface" / "paper_claims_v5.csv",
+                        out_root / "tables" / "paper_claims_legacy.csv") if p.exists())
+    return ("<section id=\"paper\"><h2>The ReSTI report against what we measure</h2>"
+            "<p>Each quantitative claim of the ReSTI report that can be checked here, the figure we measure, and "
+            "whether it is <b>reproduced</b>; claims on ReSTI v5 are measured on the public release (notebook 00), "
+            "claims on the legacy benchmark on this run's legacy input (notebook 99, only when it is real), and a "
+            f"claim that needs what is not here says why. {summary}.</p>"
+            "<div class=\"table-wrap\"><table class=\"resti-table claims\"><thead><tr><th>claim</th>"
+            "<th>ReSTI report</th><th>measured</th><th>status</th><th>how / why</th></tr></thead><tbody>"
+            + "".join(rows) + "</tbody></table></div>"
+            + (f"<p class=\"more\">{links}</p>" if links else "") + "</section>")
+
+
+def exclusions_html(out_root: Path, report_dir: Path) -> str:
+    """ReSTI v5's exclusions explained (its codes, what they mean, the split by the stated rule) and
+    ours by the same rule."""
+    ref = reference_audit(out_root)
+    parts = []
+    if ref is not None:
+        ai = out_root / "answer_interface"
+        label = ref["label"]
+        split, glossary = _read_csv(ai / f"exclusion_split_{label}.csv"), _read_csv(ai / f"exclusion_glossary_{label}.csv")
+        if split is not None and glossary is not None:
+            from .exclusions import glossary_spec
+
+            parts.append(f"<h3>The reference release ({_e(label)}) <span class=\"label real\">real data</span></h3>"
+                         f"<p><b>Rule:</b> {_e(glossary_spec()['rule'])}.</p>"
+                         + to_html(split, caption="Exclusions by class (ReSTI report: its figures beside ours).")
+                         + to_html(glossary, caption="Every exclusion code of the reference release: verification "
+                                   "verdicts (what a check of the source found) first, then reason codes (engineering "
+                                   "statuses of its pipeline), with our nearest reason code.")
+                         + f"<p class=\"more\">{_table_links(ai / f'exclusion_glossary_{label}.md', report_dir)}</p>")
+    ours = _read_csv(out_root / "tables" / "exclusion_classes.csv")
+    if ours is not None:
+        from .statistics import EXCLUSION_RULE
+
+        parts.append(f"<h3>Our release</h3><p><b>The same rule on our reason codes:</b> {_e(EXCLUSION_RULE)}.</p>"
+                     + to_html(ours, caption="Our exclusions by class.")
+                     + f"<p class=\"more\">{_table_links(out_root / 'tables' / 'exclusion_classes.md', report_dir)}</p>")
+    if not parts:
+        return ""
+    return "<section id=\"exclusions\"><h2>Exclusions explained</h2>" + "".join(parts) + "</section>"
+
+
+# ------------------------------------------------------------------------------------ examples
+
+EXAMPLES_PAGE = "examples.html"
+
+
+def _examples(out_root: Path, products: set | None) -> pd.DataFrame | None:
+    p = out_root / "tables" / "examples.csv"
+    if not p.exists() or not _current(p, out_root, products):
+        return None
+    try:
+        return pd.read_csv(p, dtype=str, keep_default_na=False)
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return None
+
+
+def examples_html(out_root: Path, report_dir: Path, products: set | None = None) -> str:
+    """One example of each verdict on the page, every task's examples on ``examples.html``."""
+    ex = _examples(out_root, products)
+    if ex is None or ex.empty:
+        return ""
+    tasks = list(dict.fromkeys(ex["task"]))
+    links = " · ".join(f'<a href="{EXAMPLES_PAGE}#ex-{_e(t.lower().replace(" ", "-").replace("&", "and"))}">'
+                       f"{_e(t)}</a>" for t in tasks)
+    first = one_per_verdict(ex)
+    return ("<section id=\"examples\"><h2>Before and after: examples</h2>"
+            f"<p>One legacy row of each verdict beside its repaired form, with the source evidence and the defects. "
+            f"Every task, up to two rows per verdict: <a href=\"{EXAMPLES_PAGE}\">all examples</a> ({links}).</p>"
+            + "".join(card_html(r) for r in first.to_dict("records")) + "</section>")
+
+
+def write_examples_page(out_root: Path, report_dir: Path, title: str, products: set | None = None) -> Path | None:
+    """``report/examples.html``: every example, by task, with a link back to the index."""
+    page = report_dir / EXAMPLES_PAGE
+    ex = _examples(out_root, products)
+    if ex is None or ex.empty:
+        page.unlink(missing_ok=True)
+        return None
+    doc = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+           "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+           f"<title>{_e(title)}: examples</title><style>{CSS}{EX_CSS}</style></head><body>\n"
+           f"<p><a href=\"index.html\">&larr; back to the report</a></p><h1>Before and after: examples</h1>"
+           "<p>Per task and verdict, up to two legacy rows (the rows with the most defects first) beside their "
+           "repaired form, with the source evidence and the defects (table <code>tables/examples.csv</code>; every "
+           "row's full record is in <code>release/provenance.parquet</code>).</p>\n"
+           + cards_html(ex) + "\n</body></html>\n")
+    atomic_write_bytes(page, doc.encode("utf-8"))
+    return page
 
 
 # --------------------------------------------------------------------------- figures, tables
@@ -344,17 +535,22 @@ def write_index(out_root: Path | None = None, *, title: str = "resti audit repor
     index = report_dir / "index.html"
     if context is None:
         context = ((_read_json(out_root / "release" / "release.json") or {}).get("run"))
-    sections = [headline_html(out_root), figures_html(out_root, report_dir, products),
+    write_examples_page(out_root, report_dir, title, products)
+    sections = [changes_html(out_root, to_html=to_html, e=_e), headline_html(out_root),
+                paper_html(out_root, report_dir), exclusions_html(out_root, report_dir),
+                examples_html(out_root, report_dir, products), figures_html(out_root, report_dir, products),
                 tables_html(out_root, report_dir, products), notebooks_html(report_dir, products),
                 release_html(out_root, report_dir)]
-    ids = [("headline", "Headline"), ("figures", "Figures"), ("tables", "Tables"),
-           ("notebooks", "Notebooks"), ("release", "Release files")]
+    ids = [("changes", "What changed"), ("headline", "Headline"), ("paper", "ReSTI report vs measured"),
+           ("exclusions", "Exclusions"),
+           ("examples", "Examples"), ("figures", "Figures"), ("tables", "Tables"), ("notebooks", "Notebooks"),
+           ("release", "Release files")]
     toc = " ".join(f'<a href="#{i}">{t}</a>' for (i, t), s in zip(ids, sections) if s)
     body = [f"<header id=\"run\"><h1>{_e(title)}</h1>{header_html(context)}</header>",
             f"<nav class=\"toc\">{toc}</nav>", *sections]
     doc = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\">"
            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-           f"<title>{_e(title)}</title><style>{CSS}</style></head><body>\n"
+           f"<title>{_e(title)}</title><style>{CSS}{EX_CSS}</style></head><body>\n"
            + "\n".join(b for b in body if b) + "\n</body></html>\n")
     atomic_write_bytes(index, doc.encode("utf-8"))
     return index

@@ -33,50 +33,16 @@ def _cmd_verify(a) -> int:
     return 0 if v["passed"] else EXIT_FAILED
 
 
-def attack_rows(rel) -> tuple[list[dict], dict]:
-    """The accepted rows an attack can read, and ``{row id: why}`` for the others (structurally bad:
-    a schema problem, a candidate that does not parse, an answer that is not a letter, a value that
-    is not finite or not physically possible)."""
-    from .. import LETTERS
-    from ..options.checks import ROW_CHECKS, parse_row
-
-    bad: dict = {}
-    for p in rel.problems:
-        if p.file is not None and rel.accepted_file is not None and p.file == str(rel.accepted_file):
-            bad.setdefault(p.row, f"{p.field}: {p.message}")
-    usable = []
-    for i, r in enumerate(rel.accepted.to_dict("records")):
-        rid = next((r[c] for c in ("ReSTI ID", "Legacy Row Key") if isinstance(r.get(c), str) and r[c].strip()), i)
-        if rid in bad:
-            continue
-        pr = parse_row(r, rid)
-        if pr.errors:
-            bad[rid] = "; ".join(f"Candidates.{k}: {m}" for k, m in sorted(pr.errors.items()))
-        elif not pr.complete:
-            bad[rid] = f"Candidates: letters {sorted(pr.candidates)}, expected A-E"
-        elif pr.answer not in LETTERS:
-            bad[rid] = f"Answer: {pr.answer!r} is not a letter A-E"
-        elif msg := ROW_CHECKS["finite_values"](pr) or ROW_CHECKS["value_ranges"](pr):
-            bad[rid] = msg
-        else:
-            usable.append(r)
-    return usable, bad
-
-
 def _cmd_attack(a) -> int:
-    from ..io.benchmark import load_release
-    from ..options.attacks import attack_table, headline, select
-    from ..release.audit import format_headline
-    from ..tasks import interface
-    from ..tasks import names as task_names
+    from ..release.audit import attack_release, format_headline
 
     try:
-        names = select(a.families or None, None if a.attacks in (None, "all", ["all"]) else a.attacks, fast=a.fast)
+        run = attack_release(a.path, families=a.families or "all", attacks=a.attacks, fast=a.fast, alpha=a.alpha,
+                             progress=True)
     except ValueError as e:
         print(f"resti attack: {e}", file=sys.stderr)
         return EXIT_INPUT
-    rel = load_release(a.path, strict=False, known_tasks=task_names())
-    records, skipped = attack_rows(rel)
+    rel, skipped, table = run.release, run.skipped, run.table
     if rel.meta_error is not None:
         print(f"resti attack: input error: file {rel.meta_file}: {rel.meta_error} (the rows are attacked; "
               "run resti verify)", file=sys.stderr)
@@ -85,18 +51,17 @@ def _cmd_attack(a) -> int:
         more = f" (and {len(skipped) - MAX_SKIPPED_SHOWN} more)" if len(skipped) > MAX_SKIPPED_SHOWN else ""
         print(f"resti attack: {len(skipped)} of {len(rel.accepted)} rows of {rel.accepted_file} skipped as "
               f"structurally bad: {shown}{more}", file=sys.stderr)
-    if not records:
+    if len(skipped) >= len(rel.accepted):  # nothing left to attack
         print(f"resti attack: no row of {rel.accepted_file} can be attacked", file=sys.stderr)
         return EXIT_INPUT
-    table = attack_table(records, iface=interface(), families="all", attacks=names, alpha=a.alpha, progress=True)
-    head = headline(table)
+    head = run.headline
     shown = head if a.headline else table
     if a.format == "json":
         print(json.dumps(shown.to_dict("records"), indent=1, default=float))
     elif a.format == "csv":
         sys.stdout.write(shown.to_csv(index=False, lineterminator="\n"))
     else:
-        print(format_headline(head, alpha=a.alpha, tests=len(table)))
+        print(format_headline(head, alpha=a.alpha, counts=run.counts))
         if not a.headline:
             t = table.copy()
             for c in ("coverage", "accuracy", "chance", "min_detectable"):
@@ -158,7 +123,7 @@ def _cmd_synth(a) -> int:
 def _cmd_run(a) -> int:
     from .pipeline import run
 
-    return run(a.params, only=a.only, jobs=a.jobs, force=a.force)
+    return run(a.params, only=a.only, jobs=a.jobs, force=a.force, baseline=a.baseline)
 
 
 def _stage_help() -> str:
@@ -253,6 +218,9 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
                         "became stale; names are listed below")
     r.add_argument("--force", action="store_true", help="rerun every stage, up to date or not")
     r.add_argument("--jobs", type=int, default=None, help="parallel notebooks (default: cores)")
+    r.add_argument("--baseline", action="store_true",
+                   help="make this run the baseline the report's What changed section compares later runs with "
+                        "(default: the first run of the output folder)")
     r.set_defaults(fn=_cmd_run)
     return p
 

@@ -189,12 +189,15 @@ def _report_key(planner: Planner) -> str:
                    "stages": {n: s.get("key") for n, s in sorted(planner.state.stages.items()) if n != REPORT}})
 
 
-def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = None, force: bool = False) -> int:
+def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = None, force: bool = False,
+        baseline: bool = False) -> int:
     """Run the stages of ``params_file`` that are stale (all with ``force``); returns an exit code.
 
     Bad params raise :class:`InputError` (one line, naming the file and field). The whole run holds
     the lock of its output folder (:func:`resti_lib.io.lock.run_lock`): a second run on the same output
-    folder stops at once with a :class:`~resti_lib.errors.BusyError`.
+    folder stops at once with a :class:`~resti_lib.errors.BusyError`. ``baseline``: this run becomes the
+    baseline the report's What changed section compares later runs with (:mod:`resti_lib.report.changes`;
+    default: the first run of the output folder).
     """
     from ..io.lock import run_lock
 
@@ -205,10 +208,44 @@ def run(params_file: str | Path | None = None, *, only=None, jobs: int | None = 
     if placement:  # before the lock, the world or anything else is made
         raise OutputError(placement, file=paths.resolve(params_file), field="output_dir")
     with run_lock(paths.resolve(cfg.get("output_dir") or "outputs")):
-        return _run(cfg, only=only, jobs=jobs, force=force, t_start=t_start)
+        return _run(cfg, only=only, jobs=jobs, force=force, t_start=t_start, baseline=baseline)
 
 
-def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float) -> int:
+RUN_PARAMS = "run_params.json"  # under <output_dir>/.resti: the params each stage last ran with
+
+
+def _record_params(planner: Planner, stages: dict, ran: list[str]) -> dict:
+    """The params every stage (on-demand stages aside) last ran with, output locations left out, and
+    the params files the package reads itself: what the What changed section compares. Stages that
+    ran now are recorded with their params; the others keep the record of their last run (a stage
+    never recorded: its current params)."""
+    import yaml
+
+    from ..io.files import atomic_write_bytes
+    from .runinfo import OUTPUT_KEYS
+    from .stages import LIBRARY_PARAMS
+
+    path = planner.out_root / ".resti" / RUN_PARAMS
+    old = _read_json(path) or {}
+    recorded = old.get("stages") or {}
+    out: dict = {"stages": {}, "library": {}}
+    for n, s in stages.items():
+        if s.get("on_demand"):
+            continue
+        if n in ran or n not in recorded:
+            params = planner.prepared(s)[1]
+            recorded[n] = {k: v for k, v in params.items() if k not in OUTPUT_KEYS and k != "run_context"}
+        out["stages"][n] = recorded[n]
+    for name in LIBRARY_PARAMS:
+        f = paths.ROOT / name
+        out["library"][name] = yaml.safe_load(f.read_text(encoding="utf-8")) if f.exists() else None
+    import json
+
+    atomic_write_bytes(path, (json.dumps(out, indent=1, sort_keys=True, ensure_ascii=False, default=str) + "\n").encode())
+    return out
+
+
+def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float, baseline: bool = False) -> int:
     from tqdm.auto import tqdm
 
     stages = cfg.get("stages") or []
@@ -285,9 +322,13 @@ def _run(cfg: dict, *, only, jobs: int | None, force: bool, t_start: float) -> i
         return 1
     if bar is not None:
         bar.close()
-    index = _write_report(planner, out_root, force=force or bool(ran))
+    from ..report.changes import update as update_changes
+
+    changed = update_changes(out_root, _record_params(planner, by_name, ran), rebaseline=baseline)
+    index = _write_report(planner, out_root, force=force or bool(ran) or baseline)
     _warn_stale(planner, stages, candidates, needs)
-    print(summary(out_root, ran=ran, skipped=skipped, seconds=time.perf_counter() - t_start, index=index))
+    print(summary(out_root, ran=ran, skipped=skipped, seconds=time.perf_counter() - t_start, index=index,
+                  changed=changed))
     return 0
 
 
@@ -334,13 +375,13 @@ def _read_json(p: Path):
         return None
 
 
-def _significant(csv_path: Path, *, skip=()) -> list[dict]:
+def _significant(csv_path: Path) -> list[dict]:
     import csv
 
     if not csv_path.exists():
         return []
     with open(csv_path, encoding="utf-8", newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("significant") == "True" and r.get("attack") not in skip]
+        rows = [r for r in csv.DictReader(f) if r.get("significant") == "True"]
     return sorted(rows, key=lambda r: -float(r.get("accuracy") or 0))
 
 
@@ -359,9 +400,10 @@ def longest_first(todo: list[str], state) -> list[str]:
     return sorted(todo, key=lambda n: (last[n] is not None, -(last[n] or 0.0)))
 
 
-def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: float, index: Path) -> str:
-    """The closing lines of a run: what ran, the release counts, verify, significant attacks and
-    where to look next."""
+def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: float, index: Path,
+            changed: dict | None = None) -> str:
+    """The closing lines of a run: what ran, the release counts, verify, significant attacks, what
+    changed against the baseline (and its warnings) and where to look next."""
     lines = [f"resti run: {len(ran)} stage(s) run, {len(skipped)} up to date, {seconds:.1f} s"
              + (f" ({', '.join(ran)})" if ran else "")]
     rel = out_root / "release"
@@ -375,17 +417,27 @@ def summary(out_root: Path, *, ran: list[str], skipped: list[str], seconds: floa
         lines.append(f"  release: {c.get('original', 0):,} legacy rows ({kind}) -> {c.get('accepted', 0):,} "
                      f"accepted + {c.get('excluded', 0):,} excluded; verify "
                      + ("PASSED" if val and val.get("passed") else "FAILED" if val else "not run"))
+    from ..report.index import reference_audit, release_attack_counts
+
     tables = out_root / "tables"
-    ours = _significant(tables / "attacks_release.csv", skip=("label_prior",))
-    prior = _significant(tables / "attacks_release.csv") if not ours else []
-    if (tables / "attacks_release.csv").exists():
-        lines.append(f"  blind attacks on our release: {len(ours)} Holm-significant"
-                     + (" (label priors aside: " + ", ".join(f"{r['task']}/{r['source']}" for r in prior) + ")"
-                        if prior else ""))
-    ref = _significant(tables / "reference_attacks.csv")
-    if (tables / "reference_attacks.csv").exists():
-        top = "; ".join(f"{r['task']}/{r['source']} {r['attack']} {float(r['accuracy']):.1%}" for r in ref[:4])
-        lines.append(f"  blind attacks on the reference release: {len(ref)} Holm-significant"
-                     + (f", strongest: {top}" if ref else ""))
+    ours = release_attack_counts(out_root)
+    if ours is not None:
+        lines.append(f"  blind attacks on our release: {ours.sentence()}; `resti attack {_rel_to_cwd(rel)}` prints "
+                     "the same")
+    ref = reference_audit(out_root)
+    if ref is not None:
+        v, att = ref["verify"], ref["attacks"]
+        failing = ", ".join(f"{k} {n}" for k, n in v["failing"].items())
+        sig = _significant(out_root / "answer_interface" / f"attacks_{ref['label']}.csv")
+        top = "; ".join(f"{r['task']}/{r['source']} {r['attack']} {float(r['accuracy']):.1%}" for r in sig[:4])
+        lines.append(f"  reference release {ref['release']}: resti verify "
+                     + ("PASSED" if v["passed"] else f"FAILED ({failing} rows)")
+                     + f"; blind attacks: {att['sentence']}" + (f", strongest: {top}" if top else ""))
+    if changed:
+        names = ", ".join(f"{p['param']} {p['before']} -> {p['after']}" for p in changed["params"][:4])
+        lines.append(f"  what changed against the baseline run: {names}; {changed['rows_changed']} rows changed"
+                     + (f"; {len(changed['warnings'])} warning(s) in the report's What changed section"
+                        if changed["warnings"] else ""))
+        lines += [f"    warning: {w['text']}" for w in changed["warnings"]]
     lines.append(f"  report: {_rel_to_cwd(index)}  (release: {_rel_to_cwd(rel)}, tables: {_rel_to_cwd(tables)})")
     return "\n".join(lines)

@@ -131,6 +131,14 @@ _FLOOR = {
 #: (shortest, longest) integer-second interval of Waymo object-subject rows: path length, acceleration.
 _INTERVAL = {"path": (2, 12), "accel": (3, 12)}
 _CENTER_GAP = {"indoor": (0.08, 0.8), "outdoor": (0.5, 4.0), "desktop": (0.01, 0.08)}
+#: Legacy option leak of the scalar tasks (ReSTI report, "The choices reveal answers without video": the
+#: median candidate is the answer on 46.9% of the 1,129 legacy scalar rows): this share of the legacy
+#: scalar rows gets its four distractors split two below and two above the answer (where the value
+#: leaves room below zero), the others a side at random per distractor. The pick is scored against the
+#: legacy key, which points at a distractor on the key-detail mismatch rows (about half), so the share
+#: is high: with the Orientation grid and smallest-answer rows the pooled median pick is 46.5% (73/157)
+#: on the default world and 44.5% (518/1,163) at scale 1, against the report's 46.9%.
+BALANCED_SHARE = 0.9
 _POSE_GAP = {"ScanNet": (0.3, 2.0), "Waymo": (1.0, 20.0), "Omni6DPose": (0.05, 0.4)}
 
 
@@ -1255,9 +1263,12 @@ def _scalar_text(v: float, unit: str) -> str:
     return format_scalar(v, unit)
 
 
-def _scalar_candidates(rng: np.random.Generator, v: float, unit: str, scen: str) -> list[str]:
-    """The legacy answer plus four distractors at log-sampled gaps scaled by scenario and value."""
+def _scalar_candidates(rng: np.random.Generator, v: float, unit: str, scen: str) -> tuple[list[str], str]:
+    """The legacy answer plus four distractors at log-sampled gaps scaled by scenario and value, and
+    how their sides were chosen: ``balanced`` (two below and two above the answer where the value
+    leaves room, :data:`BALANCED_SHARE` of the rows) or ``random`` (a side at random per distractor)."""
     floor = max(_FLOOR.get((scen, unit), 0.05), 0.01)
+    balanced = bool(rng.random() < BALANCED_SHARE)
     out = [_scalar_text(v, unit)]
     vals = [float(out[0][: -len(unit)])]
     tries = 0
@@ -1267,14 +1278,15 @@ def _scalar_candidates(rng: np.random.Generator, v: float, unit: str, scen: str)
             floor * math.exp(rng.uniform(0, math.log(6))),
             abs(v) * math.exp(rng.uniform(math.log(0.06), math.log(0.5))),
         )
-        d = v - g if (rng.random() < 0.5 and v - g >= 0) else v + g
+        below = len(out) % 2 == 1 if balanced else rng.random() < 0.5  # balanced: below, above, below, above
+        d = v - g if (below and v - g >= 0) else v + g
         txt = _scalar_text(d, unit)
         x = float(txt[: -len(unit)])
         if all(abs(x - y) >= 0.01 - 1e-9 for y in vals):
             out.append(txt)
             vals.append(x)
         tries += 1
-    return out
+    return out, "balanced" if balanced else "random"
 
 
 def _angle_candidates(rng: np.random.Generator, v: float, kind: str) -> list[str]:
@@ -1368,20 +1380,48 @@ def _trajectory_candidates(rng: np.random.Generator, segments: list) -> list[str
     return out[:1] + list(rng.permutation(out[1:]))[:4]
 
 
-def make_candidates(rng: np.random.Generator, d: Draft) -> list[str]:
-    """Five candidate strings, the legacy answer first (letters are assigned later)."""
+#: How the legacy distractors of each kind were placed (the manifest's ``legacy_options.construction``).
+CONSTRUCTIONS = {
+    "balanced": "scalar: two distractors below and two above the answer (the median candidate is the answer)",
+    "random": "scalar: each distractor below or above the answer at random",
+    "angle_grid": "angle: distractors at -15, -7.5, +7.5 and +15 degrees around the answer (the median is the answer)",
+    "angle_smallest": "angle: distractors at cumulative gaps above the answer (the smallest candidate is the answer)",
+    "pose": "pose: translations perturbed, rotations perturbed or the answer's",
+    "box": "box: centre, edges and heading perturbed",
+    "label": "label: four other labels of the task",
+    "trajectory": "trajectory: distances scaled, turns flipped or dropped",
+}
+
+
+def make_candidates(rng: np.random.Generator, d: Draft) -> tuple[list[str], str]:
+    """Five candidate strings, the legacy answer first (letters are assigned later), and how the
+    distractors were placed (a key of :data:`CONSTRUCTIONS`)."""
     a = d.cand_args
     if d.cand_kind == "scalar":
         return _scalar_candidates(rng, a["value"], a["unit"], a["scenario"])
     if d.cand_kind in ("angle_grid", "angle_smallest"):
-        return _angle_candidates(rng, a["value"], d.cand_kind)
+        return _angle_candidates(rng, a["value"], d.cand_kind), d.cand_kind
     if d.cand_kind == "pose":
-        return _pose_candidates(rng, a["T"], a["compact"], a["source"], a["same_rotation"])
+        return _pose_candidates(rng, a["T"], a["compact"], a["source"], a["same_rotation"]), "pose"
     if d.cand_kind == "box":
-        return _box_candidates(rng, a["legacy"], a["scenario"])
+        return _box_candidates(rng, a["legacy"], a["scenario"]), "box"
     if d.cand_kind == "label":
-        return _label_candidates(rng, a["value"], a["labels"])
-    return _trajectory_candidates(rng, a["segments"])
+        return _label_candidates(rng, a["value"], a["labels"]), "label"
+    return _trajectory_candidates(rng, a["segments"]), "trajectory"
+
+
+def _answer_rank(texts: list[str], ans_pos: int, unit: str | None) -> int | None:
+    """Rank (1 = smallest value) of the legacy answer among the five candidates as written (SI values, so
+    ``45cm`` and ``0.45m`` compare); None for candidates that are not scalars."""
+    if unit is None:
+        return None
+    from ..values import Scalar, parse
+
+    vals = [parse(t) for t in texts]
+    if not all(isinstance(x, Scalar) for x in vals):
+        return None
+    si = [x.si for x in vals]
+    return 1 + sum(x < si[ans_pos] - 1e-12 for x in si)
 
 
 def _numeric_alt(text: str, unit: str) -> str:
@@ -1467,7 +1507,7 @@ def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], 
     for i, sl in enumerate(slots):
         d = builder.build(sl)
         rng = rng_for(seed, f"answer|{sl.key}")
-        cands = make_candidates(rng, d)
+        cands, construction = make_candidates(rng, d)
         unit = (
             d.cand_args.get("unit")
             if d.cand_kind == "scalar"
@@ -1541,6 +1581,7 @@ def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], 
         }
         if d.evidence:
             rec["evidence"] = _r(d.evidence)
+        rec["legacy_options"] = {"construction": construction, "answer_rank": _answer_rank(texts, int(ans_pos), unit)}
         manifest.append(rec)
     return rows, manifest
 

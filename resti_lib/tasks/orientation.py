@@ -334,15 +334,35 @@ def diagnosis_table(outcomes: list[Outcome]) -> pd.DataFrame:
     return pd.DataFrame(recs)
 
 
-def _arc(ax, a0: float, a1: float, r: float, color: str, label: str) -> None:
-    """Signed arc from angle a0 to a1 (radians, a1 - a0 already the signed change)."""
+def _arc(ax, a0: float, a1: float, r: float, color: str) -> None:
+    """Signed arc from angle a0 to a1 (radians, a1 - a0 already the signed change), unlabelled: the
+    value is written in the panel's corner (:func:`_angle_box`), where nothing can cover it."""
     ts = np.linspace(a0, a1, 80)
     ax.plot(r * np.cos(ts), r * np.sin(ts), color=color, lw=1.4)
     ax.annotate("", (r * np.cos(ts[-1]), r * np.sin(ts[-1])), (r * np.cos(ts[-3]), r * np.sin(ts[-3])),
                 arrowprops={"arrowstyle": "->", "color": color, "lw": 1.4})
-    mid = ts[len(ts) // 2]
-    ax.text(1.18 * r * np.cos(mid), 1.18 * r * np.sin(mid), label, color=color, fontsize=8, ha="center",
-            va="center")
+
+
+def _angle_box(ax, text: str, color: str) -> None:
+    ax.text(0.98, 0.03, text, transform=ax.transAxes, color=color, fontsize=8, ha="right", va="bottom",
+            bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": color, "lw": 0.8})
+
+
+MIN_LABEL_GAP = math.radians(28.0)  # start and end labels at least this far apart around the circle
+
+
+def _end_labels(ax, w0: np.ndarray, w1: np.ndarray, colors=("#2c7fb8", "#d4a017")) -> None:
+    """``start`` and ``end`` beyond the arrow tips, pushed apart around the circle when the two
+    directions are close, aligned away from the centre so the text never covers an arrow."""
+    t0, t1 = math.atan2(w0[1], w0[0]), math.atan2(w1[1], w1[0])
+    d = (t1 - t0 + math.pi) % (2 * math.pi) - math.pi
+    if abs(d) < MIN_LABEL_GAP:
+        push = 0.5 * (MIN_LABEL_GAP - abs(d)) * (1.0 if d >= 0 else -1.0)
+        t0, t1 = t0 - push, t1 + push
+    for t, color, lab in ((t0, colors[0], "start"), (t1, colors[1], "end")):
+        x, y = 1.12 * math.cos(t), 1.12 * math.sin(t)
+        ax.text(x, y, lab, color=color, fontsize=8, ha="left" if x >= 0 else "right",
+                va="bottom" if y >= 0 else "top")
 
 
 def figure_endpoints(run, path: str | Path, *, row: int | None = None) -> Path | None:
@@ -376,14 +396,15 @@ def figure_endpoints(run, path: str | Path, *, row: int | None = None) -> Path |
     axes_ev = o.evidence["legacy_operator_axes"]
     a, b = np.array(axes_ev["column2_t0"]), np.array(axes_ev["column2_t1"])
     ax = axes[0]
-    for v, color, lab in ((a, "#2c7fb8", "start"), (b, "#d4a017", "end")):
+    ws = []
+    for v, color in ((a, "#2c7fb8"), (b, "#d4a017")):
         w = np.array([v[0], v[2]])
-        w = w / (np.linalg.norm(w) or 1.0)
-        ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
-        ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
+        ws.append(w / (np.linalg.norm(w) or 1.0))
+        ax.annotate("", (ws[-1][0], ws[-1][1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
+    _end_labels(ax, *ws)
     a0 = math.atan2(a[2], a[0])
-    _arc(ax, a0, a0 - math.radians(conv["xz_plane_column2"]), 0.6, "#d7301f",
-         f"{conv['xz_plane_column2']:+.2f}°")
+    _arc(ax, a0, a0 - math.radians(conv["xz_plane_column2"]), 0.6, "#d7301f")
+    _angle_box(ax, f"X-Z angle {conv['xz_plane_column2']:+.2f}°", "#d7301f")
     ax.set_xlabel("world X")
     ax.set_ylabel("world Z (vertical)")
     ax.set_title("(a) legacy: source camera column 2 on raw-world X-Z", fontsize=8, loc="left")
@@ -394,19 +415,21 @@ def figure_endpoints(run, path: str | Path, *, row: int | None = None) -> Path |
     e2 = np.cross(up, e1)
     f0, f1 = np.array(o.evidence["heading"]["forward_t0"]), np.array(o.evidence["heading"]["forward_t1"])
     ax = axes[1]
-    for v, color, lab in ((f0, "#2c7fb8", "start"), (f1, "#d4a017", "end")):
+    ws = []
+    for v, color in ((f0, "#2c7fb8"), (f1, "#d4a017")):
         w = np.array([v @ e1, v @ e2])
-        w = w / (np.linalg.norm(w) or 1.0)
-        ax.annotate("", (w[0], w[1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
-        ax.text(1.08 * w[0], 1.08 * w[1], lab, color=color, fontsize=8)
+        ws.append(w / (np.linalg.norm(w) or 1.0))
+        ax.annotate("", (ws[-1][0], ws[-1][1]), (0, 0), arrowprops={"arrowstyle": "->", "color": color, "lw": 2})
+    _end_labels(ax, *ws)
     h0 = math.atan2(f0 @ e2, f0 @ e1)
-    _arc(ax, h0, h0 + math.radians(conv["gravity_heading"]), 0.6, "#08519c", f"{conv['gravity_heading']:+.2f}°")
+    _arc(ax, h0, h0 + math.radians(conv["gravity_heading"]), 0.6, "#08519c")
+    _angle_box(ax, f"heading change {conv['gravity_heading']:+.2f}°", "#08519c")
     ax.set_xlabel("horizontal axis 1 (world X)")
     ax.set_ylabel("horizontal axis 2 (world Y)")
     ax.set_title("(b) repair: optical forward on the gravity-horizontal plane", fontsize=8, loc="left")
     for ax in axes:
-        ax.set_xlim(-1.35, 1.35)
-        ax.set_ylim(-1.35, 1.35)
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_ylim(-1.6, 1.6)
         ax.set_aspect("equal")
         ax.axhline(0, color="#dddddd", lw=0.6, zorder=0)
         ax.axvline(0, color="#dddddd", lw=0.6, zorder=0)
