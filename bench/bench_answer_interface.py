@@ -51,7 +51,7 @@ def main() -> None:
           f"({(full_w - fast_w) / full_w:.0%} of the run)")
 
     from resti_lib.io.benchmark import load_release
-    from resti_lib.options.attacks import ATTACKS, FAMILIES, _run_one, make_batch, parse_rows, select
+    from resti_lib.options.attacks import ATTACKS, FAMILIES, make_batch, parse_rows, run_one, select
     from resti_lib.release.verify import verify_release
 
     rel, w_load, c_load = _timed(lambda: load_release(src, strict=False))
@@ -65,7 +65,7 @@ def main() -> None:
         print(f"  {name:18s} wall {w:6.2f} s  cpu {c:6.2f} s  {n / w:8.0f} rows/s")
     for fam in FAMILIES:
         names = select(fam)
-        _, w, c = _timed(lambda names=names: [_run_one(ATTACKS[a], batch) for a in names])
+        _, w, c = _timed(lambda names=names: [run_one(ATTACKS[a], batch) for a in names])
         print(f"  {fam:18s} wall {w:6.2f} s  cpu {c:6.2f} s  {n / w:8.0f} rows/s  ({len(names)} attacks)")
 
 

@@ -226,7 +226,7 @@ def test_learned_attacker_at_chance_on_exchangeable_rows():
 
 
 def test_learned_attacker_never_trains_and_tests_on_one_video():
-    from resti_lib.options import learned as L
+    from resti_lib.options.attacks import learned as L
 
     rows = _scalar_rows(60, planted=False)
     seen = []

@@ -1,0 +1,98 @@
+"""The other rows' answers as a reference population, the row's own recording always left out.
+
+Rules that read other rows' answers (a typical value, a majority label, a rate) compare a row's
+candidates with the answers of *other source sequences*: the camera videos of one Waymo segment
+share answers, so a row never learns from its own recording. A rule learned on one half of the
+recordings and tested on the other (:func:`split_halves`) keeps its test exact.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections import Counter, defaultdict
+from collections.abc import Callable
+
+import numpy as np
+
+from ... import LETTERS
+from .batch import Batch
+from .common import Directional, top
+from .features import answer_key, labelled
+
+MIN_NOUN_ROWS = 4  # condition on the subject noun when at least this many other rows share it
+
+
+def bandwidth(x: np.ndarray) -> float:
+    """The normal-reference bandwidth of a kernel density on the candidate values of a group (blind:
+    no answer is used)."""
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return 1.0
+    sd = float(np.std(x))
+    iqr = float(np.subtract(*np.percentile(x, [75, 25]))) / 1.34
+    s = min(sd, iqr) if iqr > 0 else sd
+    return max(0.9 * s * len(x) ** -0.2, 1e-6)
+
+
+def loo_density(batch: Batch, values: list, pop_key, *, noun_key=None) -> list:
+    """Per row: ``letter -> log density`` of each candidate's value among the answers' values of the rows
+    with the same ``pop_key(i)`` from *other source sequences* (Gaussian kernel; bandwidth from all
+    candidate values of the population, no answer used). With ``noun_key``, rows whose noun is shared
+    by at least :data:`MIN_NOUN_ROWS` such rows use only those. ``values[i]``: ``letter -> float`` or
+    None."""
+    out: list = [None] * len(batch)
+    groups = batch.groups(lambda i: pop_key(i) if values[i] is not None else None)
+    for idx in groups.values():
+        ans = np.array([values[i][batch.rows[i].answer] for i in idx])
+        cands = np.array([[values[i][k] for k in LETTERS] for i in idx])
+        seqs = np.array([batch.obs[i].sequence for i in idx], dtype=object)
+        h = bandwidth(cands.ravel())
+        nouns = np.array([noun_key(i) if noun_key else None for i in idx], dtype=object)
+        for j, i in enumerate(idx):
+            mask = seqs != seqs[j]  # leave the row's whole source sequence out
+            if noun_key and nouns[j] is not None and int((mask & (nouns == nouns[j])).sum()) >= MIN_NOUN_ROWS:
+                mask &= nouns == nouns[j]
+            pop = ans[mask]
+            if len(pop) == 0:
+                continue
+            z = (cands[j][:, None] - pop[None, :]) / h
+            dens = np.exp(-0.5 * z * z).sum(1)
+            out[i] = {k: float(np.log(d + 1e-300)) for k, d in zip(LETTERS, dens)}
+    return out
+
+
+def split_halves(batch: Batch, learn: Callable[[list, list], dict]) -> Directional:
+    """A rule learned on one half of the source sequences and tested on the other, both ways: direction
+    ``"half 1 from half 0"`` picks in the rows of half 1 with what ``learn(train, test)`` (row indices)
+    returns for them (``{row: pick}``), and vice versa. A row's pick never depends on the answers of its
+    own half, so each direction's test is exact; the table keeps the better one (Bonferroni over two)."""
+    half = [zlib.crc32(str(o.sequence).encode("utf-8")) % 2 for o in batch.obs]
+    out = Directional()
+    for test_half in (1, 0):
+        train = [i for i, h in enumerate(half) if h != test_half]
+        test = [i for i, h in enumerate(half) if h == test_half]
+        picks: list = [None] * len(batch)
+        for i, pk in learn(train, test).items():
+            picks[i] = pk
+        out[f"half {test_half} from half {1 - test_half}"] = picks
+    return out
+
+
+def majority_label(batch: Batch, train: list, test: list, key_of_row: Callable[[int], object]) -> dict:
+    """For each test row: the candidates whose label (trajectory: structure) is the most frequent answer
+    among the training rows with the same ``key_of_row`` (ties: every tied label); rows whose key has
+    no training row are left out."""
+    counts: dict = defaultdict(Counter)
+    for i in train:
+        k = key_of_row(i)
+        if k is not None and labelled(batch.rows[i]):
+            p = batch.rows[i]
+            counts[k][answer_key(p.values[p.answer])] += 1
+    out = {}
+    for i in test:
+        k = key_of_row(i)
+        p = batch.rows[i]
+        if k is None or k not in counts or not labelled(p):
+            continue
+        out[i] = top({c: float(counts[k].get(answer_key(v), 0)) for c, v in p.values.items()})
+    return out
