@@ -49,13 +49,29 @@ from ...geometry.frames import nearest_rotation
 from ..checks import ParsedRow
 from .batch import Batch, make_batch
 from .common import top
-from .features import implied_rate, is_camera, noun_of, order_concordance, premise_parts, repeats_premise, rot_angle
+from .features import (
+    decimals,
+    implied_rate,
+    is_camera,
+    last_digit,
+    noun_of,
+    order_concordance,
+    premise_parts,
+    question_kind,
+    repeats_premise,
+    rot_angle,
+    significant_stripped,
+    tokens,
+    value_scale,
+)
+from .reference import population_features
 from .registry import ATTACKS, attack, select
 from .scoring import attack_table, picks_frame
 
 NAME = "learned_blind"
 QUESTION_NAME = "learned_question"
 SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
+FIT_THREADS = 2    # threads that grow the population attacker's trees
 LABELS = tuple(V.RELATION_LABELS)
 
 
@@ -71,6 +87,9 @@ class LearnedConfig:
     max_leaf_nodes: int = 15
     min_samples_leaf: int = 20
     n_estimators: int = 300
+    population_model: str = "random_forest"  # the population attacker's classifier (or "gradient_boosting")
+    population_trees: int = 60
+    population_min_leaf: int = 8
 
 
 # ------------------------------------------------------------------------------------ features
@@ -285,20 +304,33 @@ def feature_matrix(rows: list[ParsedRow], tasks: tuple | None = None) -> tuple[n
 
 # ------------------------------------------------------------------------------------ the attack
 
-def _model(cfg: LearnedConfig):
-    if cfg.model == "gradient_boosting":
+def _model(cfg: LearnedConfig, model: str | None = None):
+    """The classifier named by ``model`` (default ``cfg.model``)."""
+    model = model or cfg.model
+    if model == "gradient_boosting":
         from sklearn.ensemble import HistGradientBoostingClassifier
 
         return HistGradientBoostingClassifier(max_iter=cfg.max_iter, learning_rate=cfg.learning_rate,
                                               max_leaf_nodes=cfg.max_leaf_nodes,
                                               min_samples_leaf=cfg.min_samples_leaf, early_stopping=False,
                                               random_state=cfg.random_state)
-    if cfg.model == "random_forest":
+    if model == "random_forest":
         from sklearn.ensemble import RandomForestClassifier
 
         return RandomForestClassifier(n_estimators=cfg.n_estimators, min_samples_leaf=cfg.min_samples_leaf // 4 or 1,
                                       random_state=cfg.random_state, n_jobs=1)
-    raise ValueError(f"unknown model {cfg.model!r} (gradient_boosting or random_forest)")
+    raise ValueError(f"unknown model {model!r} (gradient_boosting or random_forest)")
+
+
+def _population_model(cfg: LearnedConfig):
+    """The population attacker's classifier: a random forest (trees grown on two threads; a tree does not
+    depend on the thread that grows it) or the gradient boosting of :func:`_model`."""
+    if cfg.population_model == "random_forest":
+        from sklearn.ensemble import RandomForestClassifier
+
+        return RandomForestClassifier(n_estimators=cfg.population_trees, min_samples_leaf=cfg.population_min_leaf,
+                                      random_state=cfg.random_state, n_jobs=FIT_THREADS)
+    return _model(cfg, cfg.population_model)
 
 
 def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig | None = None
@@ -315,15 +347,20 @@ def out_of_fold_scores(rows: list[ParsedRow], videos: list, cfg: LearnedConfig |
     return grouped_scores(X, y, [videos[i] for i in used], cfg), used
 
 
-def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfig | None = None) -> np.ndarray:
+def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfig | None = None, *,
+                   fold_features=None, make_model=None) -> np.ndarray:
     """Out-of-fold scores (n_rows, 5) of a classifier on candidate features ``X`` (5 consecutive candidate
     rows per question, in letter order) with labels ``y``; folds by ``groups`` (one label per question),
-    so no group is in a training and a test fold at once."""
+    so no group is in a training and a test fold at once. ``fold_features(train)`` (optional): more
+    candidate features made from the training rows of a fold alone (``train``: a boolean mask over the
+    questions), e.g. where a candidate stands among the training answers. ``make_model(cfg)``: the
+    classifier (default :func:`_model`); it predicts on one thread, so its sums are reproducible."""
     from sklearn.model_selection import GroupKFold
     from threadpoolctl import threadpool_limits
 
     cfg = cfg or LearnedConfig()
-    X = X[:, ~np.all(np.isnan(X), axis=0)]  # features of kinds absent from these rows
+    if fold_features is None:
+        X = X[:, ~np.all(np.isnan(X), axis=0)]  # features of kinds absent from these rows
     groups_row = np.array([str(g) for g in groups])
     n_groups = len(set(groups_row))
     if n_groups < 2:
@@ -338,10 +375,18 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
         if y[tr].all() or not y[tr].any():
             scores[test] = 0.0
             continue
-        model = _model(cfg)
+        Xf = X
+        if fold_features is not None:
+            mask = np.zeros(len(groups_row), bool)
+            mask[train] = True
+            Xf = np.concatenate([X, fold_features(mask)], axis=1)
+            Xf = Xf[:, ~np.all(np.isnan(Xf[tr]), axis=0)]
+        model = (make_model or _model)(cfg)
         with threadpool_limits(1):  # one thread: reproducible sums and no oversubscription
-            model.fit(X[tr], y[tr])
-            proba = model.predict_proba(X[te])[:, list(model.classes_).index(True)]
+            model.fit(Xf[tr], y[tr])
+            if hasattr(model, "n_jobs"):
+                model.n_jobs = 1  # trees' votes summed in one order
+            proba = model.predict_proba(Xf[te])[:, list(model.classes_).index(True)]
         scores[test] = proba.reshape(-1, 5)
     return scores
 
@@ -468,6 +513,112 @@ def _learned_question(batch: Batch):
     X, y = _option_matrix(batch)
     Xq = np.concatenate([X, question_matrix(batch)], axis=1)
     return _picks_of_scores(grouped_scores(Xq, y, groups, config_of(batch.settings.get("learned"))))
+
+
+# ------------------------------------------------------------------------------------ population-relative features
+
+POPULATION_NAME = "learned_population"
+
+
+def _onehot(labels: list, names: tuple) -> np.ndarray:
+    out = np.zeros((len(labels), len(names)))
+    for r, x in enumerate(labels):
+        if x in names:
+            out[r, names.index(x)] = 1.0
+    return out
+
+
+def _printed(s: str) -> list[float]:
+    """How a candidate is printed: decimals and significant digits (trailing zeros dropped) of its numbers,
+    its last digit, whether that is 0, and its length."""
+    toks = tokens(s)
+    last = last_digit(toks[-1]) if toks else "x"
+    return [float(sum(decimals(t) for t in toks)), float(sum(significant_stripped(t) for t in toks)),
+            float(last) if last.isdigit() else np.nan, float(last == "0"), float(len("".join(str(s).split())))]
+
+
+def _log_rates(p, o) -> dict | None:
+    """``letter -> log rate`` each candidate implies over the question's window (None without one)."""
+    r = {k: implied_rate(v, o) for k, v in p.values.items()}
+    if any(x is None for x in r.values()):
+        return None
+    return {k: math.log(x[1] + 1e-4) for k, x in r.items()}
+
+
+def population_static(batch: Batch) -> np.ndarray:
+    """The fold-independent part of the population attacker's features, (n_rows * 5, F): the candidate on
+    its value scale and its implied rate, with their rank, gaps to the neighbours (relative to the set's
+    range) and standardised position within the set; how it is printed (relative to the set too); the
+    question's window; the task, source and quantity (one-hot over the batch's own, sorted)."""
+    def make():
+        vals = [value_scale(p) for p in batch.rows]
+        rates = [_log_rates(p, o) for p, o in zip(batch.rows, batch.obs)]
+        cols = []
+        for v in (vals, rates):
+            x = np.array([[d[k] for k in LETTERS] if d is not None else [np.nan] * 5 for d in v], float)
+            cols.append(x.reshape(-1, 1))
+            cols.append(np.concatenate([_column_stats(row)[:, :4] for row in x]))
+        printed = np.array([[_printed(p.candidates[k]) for k in LETTERS] for p in batch.rows], float)
+        flat = printed.reshape(-1, printed.shape[2])
+        rel = (printed - printed.mean(axis=1, keepdims=True)).reshape(-1, printed.shape[2])
+        window = np.repeat([math.log(o.window_s + 0.1) if o.window_s else np.nan for o in batch.obs], 5)[:, None]
+        quantities = tuple(sorted({o.quantity for o in batch.obs}))
+        sources = tuple(sorted({str(p.source) for p in batch.rows}))
+        hot = [_onehot([str(p.task) for p in batch.rows], batch.tasks),
+               _onehot([str(p.source) for p in batch.rows], sources),
+               _onehot([o.quantity for o in batch.obs], quantities)]
+        hot = np.repeat(np.concatenate(hot, axis=1), 5, axis=0)
+        return np.concatenate(cols + [flat, rel, window, hot], axis=1)
+    return batch.memo("learned_population_static", make)
+
+
+def population_fold(batch: Batch, train: np.ndarray) -> np.ndarray:
+    """The fold-dependent part: where each candidate value and implied rate stands among the answers (and
+    the candidates) of the training rows of its task, source and question type (rates: source, rate kind
+    and subject), never of its own recording (:func:`reference.population_features`), and each of those
+    relative to the candidate set's mean."""
+    vals, rates, gv, gr = batch.memo("learned_population_values", lambda: _population_values(batch))
+    parts = []
+    for v, g in ((vals, gv), (rates, gr)):
+        f = population_features(batch, v, g, train)
+        parts += [f, f - np.repeat(f.reshape(len(batch), 5, -1).mean(axis=1), 5, axis=0)]
+    return np.concatenate(parts, axis=1)
+
+
+def _population_values(batch: Batch):
+    vals = [value_scale(p) for p in batch.rows]
+    rates = [_log_rates(p, o) for p, o in zip(batch.rows, batch.obs)]
+    gv = [(str(p.task), str(p.source), question_kind(o)) for p, o in zip(batch.rows, batch.obs)]
+    gr = [(str(p.source), implied_rate(p.values["A"], o)[0] if r is not None else None,
+           "camera" if is_camera(o) else "object") for p, o, r in zip(batch.rows, batch.obs, rates)]
+    return vals, rates, gv, gr
+
+
+@attack(POPULATION_NAME, ["scalar", "trajectory"], "gradient-boosting classifier on population-relative features: "
+        "each candidate's quantile and density among the answers (and the candidates) of its task, source and "
+        "question type, fitted out of fold on other recordings; its implied rate likewise; its rank, gaps and "
+        "position within the set; its printed digits; the window (out of fold by source sequence)",
+        family="learned_question", scope="batch")
+def _learned_population(batch: Batch):
+    groups = cv_groups(batch)
+    used = [i for i, p in enumerate(batch.rows) if value_scale(p) is not None]
+    if len({groups[i] for i in used}) < 2:
+        return [None] * len(batch)
+    X = population_static(batch)
+    y = np.array([[k == p.answer for k in LETTERS] for p in batch.rows]).ravel()
+    sel = (np.array(used)[:, None] * 5 + np.arange(5)).ravel()
+
+    def fold(train_mask):
+        full = np.zeros(len(batch), bool)
+        full[np.array(used)[train_mask]] = True
+        return population_fold(batch, full)[sel]
+
+    scores = grouped_scores(X[sel], y[sel], [groups[i] for i in used], config_of(batch.settings.get("learned")),
+                            fold_features=fold, make_model=_population_model)
+    out: list = [None] * len(batch)
+    for i, pk in zip(used, _picks_of_scores(scores)):
+        out[i] = pk
+    return out
 
 
 def attack_table_with_learned(records: list[dict], *, iface=None, alpha: float = 0.05, attacks=None,

@@ -1,135 +1,142 @@
 """Family ``prior``: what the other recordings of the release say about a printed candidate.
 
-- ``string_rate``: how often a candidate's printed string (direction ``string``, anywhere in the
-  release) or value (direction ``value``, among questions of the same quantity) is the answer when it
-  is offered, counted over the rows of *other recordings* (the row's own recording left out) and shrunk
+Every rule here is learned on one half of the recordings (source sequences) and tested on the other,
+both ways (:func:`resti_lib.options.attacks.reference.split_halves`): a rate or a neighbour learned
+leaving only the row's own recording out would make the rows choose for each other, and rows that
+share their luck make a binomial test far too confident (two labels near a tie at the bottom of a
+leave-one-out count hand every row its own answer).
+
+- ``string_rate``: how often a candidate's printed string (``string``, anywhere in the release) or
+  value (``value``, among questions of the same quantity) is the answer when it is offered, shrunk
   towards chance; the candidate of highest (or lowest) rate;
 - ``field_rate``: the same rate per printed field (the j-th number of the candidate, e.g. a pose's
   ``r31``) within the task/source cell, summed in log over the fields (a field prior);
-- ``nearest_set``: nearest neighbours over candidate sets: the five rows of other recordings of the
-  same cell and question type whose sorted candidate values lie nearest to the row's; the candidate
-  at the rank their answers took most often (direction ``rank``) or nearest to their answers' median
-  relative to their sets (direction ``value``).
+- ``nearest_set``: nearest neighbours over candidate sets: the five rows of the other half of the
+  cell (same question type) whose sorted candidate values lie nearest to the row's; the candidate at
+  the rank their answers took most often (``rank``) or nearest to their answers' median relative to
+  their sets (``value``).
 """
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict
+from collections import Counter
 
 import numpy as np
 
 from ... import LETTERS
 from .batch import Batch
-from .common import CHANCE, ENDS, Directional, directional, top
+from .common import CHANCE, ENDS, Directional, extreme
 from .features import flat_text, question_kind, tokens, value_scale
+from .reference import split_halves
 from .registry import attack
 
 SHRINK = 2.0       # pseudo-offers at chance added to every rate (a string offered once says little)
 NEIGHBOURS = 5
 
 
-def _rates(batch: Batch, key_of, rows=None) -> list:
-    """Per row (of ``rows``, default every row, in that order): ``letter -> rate`` at which the candidate's
-    key (``key_of(i, letter)``; None: the row has no rate) is the answer when offered in rows of other
-    recordings: (answers + SHRINK/5) / (offers + SHRINK)."""
-    rows = range(len(batch)) if rows is None else rows
+def _rates(batch: Batch, key_of, train: list, test: list) -> dict:
+    """Per test row: ``letter -> rate`` at which the candidate's key (``key_of(i, letter)``; None: the row
+    has no rate) is the answer when offered in the training rows: (answers + SHRINK/5) / (offers + SHRINK)."""
     offered: Counter = Counter()
     answered: Counter = Counter()
-    own_off: dict = defaultdict(Counter)
-    own_ans: dict = defaultdict(Counter)
-    keys = []
-    for i in rows:
+    for i in train:
         p = batch.rows[i]
+        for k in LETTERS:
+            x = key_of(i, k)
+            if x is not None:
+                offered[x] += 1
+                answered[x] += k == p.answer
+    out = {}
+    for i in test:
         ks = {k: key_of(i, k) for k in LETTERS}
-        keys.append((i, ks))
-        seq = batch.obs[i].sequence
-        for k, x in ks.items():
-            if x is None:
-                continue
-            offered[x] += 1
-            own_off[seq][x] += 1
-            if k == p.answer:
-                answered[x] += 1
-                own_ans[seq][x] += 1
-    out: list = []
-    for i, ks in keys:
         if any(x is None for x in ks.values()):
-            out.append(None)
             continue
-        seq = batch.obs[i].sequence
-        r = {}
-        for k, x in ks.items():
-            n = offered[x] - own_off[seq][x]
-            a = answered[x] - own_ans[seq][x]
-            r[k] = (a + SHRINK * CHANCE) / (n + SHRINK)
-        out.append(r)
+        out[i] = {k: (answered[x] + SHRINK * CHANCE) / (offered[x] + SHRINK) for k, x in ks.items()}
+    return out
+
+
+def _halves(batch: Batch, variants: dict, ends=ENDS) -> Directional:
+    """Every variant's scores (``variants[name](train, test) -> {row: letter -> score}``) learned on one
+    half and tested on the other, in each of ``ends``: one direction per (variant, end, half)."""
+    out = Directional()
+    for name, scores_of in variants.items():
+        for end in ends:
+            halves = split_halves(batch, lambda train, test, f=scores_of, end=end:
+                                  {i: extreme(sc, end) for i, sc in f(train, test).items()})
+            for half, picks in halves.items():
+                out[" ".join(x for x in (name, end, half) if x)] = picks
     return out
 
 
 @attack("string_rate", ["any"], "candidate whose printed string (anywhere in the release) or value (same quantity) "
-        "is most (or least) often the answer where it is offered in other recordings (in every direction)",
-        family="prior", scope="batch")
+        "is most (or least) often the answer where it is offered in the other half of the recordings (in every "
+        "direction)", family="prior", scope="batch")
 def _string_rate(batch: Batch):
-    by_string = _rates(batch, lambda i, k: flat_text(batch.rows[i].candidates[k]))
-    by_value = _rates(batch, lambda i, k: (batch.obs[i].quantity, batch.rows[i].values[k].key()))
-    out = Directional()
-    for name, rates in (("string", by_string), ("value", by_value)):
-        for d, picks in directional(batch, rates, directions=ENDS).items():
-            out[f"{name} {d}"] = picks
+    string = lambda i, k: flat_text(batch.rows[i].candidates[k])
+    value = lambda i, k: (batch.obs[i].quantity, batch.rows[i].values[k].key())
+    return _halves(batch, {"string": lambda train, test: _rates(batch, string, train, test),
+                           "value": lambda train, test: _rates(batch, value, train, test)})
+
+
+def _field_scores(batch: Batch, train: list, test: list) -> dict:
+    """Per test row of a cell whose candidates print the same number of fields: the sum over the fields of
+    the log rate of the candidate's printed field among the training rows of the cell."""
+    toks = batch.memo("prior_tokens", lambda: [{k: tokens(p.candidates[k]) for k in LETTERS} for p in batch.rows])
+    width = [({len(t) for t in tk.values()} or {0}) for tk in toks]
+    cell = lambda i: (batch.rows[i].task, batch.rows[i].source, next(iter(width[i])) if len(width[i]) == 1 else None)
+    key = lambda i, k, f: (cell(i), f, toks[i][k][f]) if cell(i)[2] and f < cell(i)[2] else None
+    n_fields = max((c[2] or 0) for c in map(cell, test)) if test else 0
+    out: dict = {}
+    for f in range(n_fields):
+        for i, r in _rates(batch, lambda i, k, f=f: key(i, k, f), train,
+                           [i for i in test if (cell(i)[2] or 0) > f]).items():
+            acc = out.setdefault(i, dict.fromkeys(LETTERS, 0.0))
+            for k in LETTERS:
+                acc[k] += float(np.log(r[k]))
     return out
 
 
 @attack("field_rate", ["scalar", "box", "pose", "trajectory"], "candidate whose printed fields (the j-th number of "
-        "each candidate) are most (or least) often the answer's where offered in other recordings of the "
-        "task/source cell, summed in log over the fields (in every direction)", family="prior", scope="batch")
+        "each candidate) are most (or least) often the answer's where offered in the other half of the recordings "
+        "of the task/source cell, summed in log over the fields (in every direction)", family="prior",
+        scope="batch")
 def _field_rate(batch: Batch):
-    toks = [{k: tokens(p.candidates[k]) for k in LETTERS} for p in batch.rows]
-    width = [({len(t) for t in tk.values()} or {0}) for tk in toks]
-    scores: list = [None] * len(batch)
-    for idx in batch.cells().values():
-        for nf in sorted({len(toks[i]["A"]) for i in idx if len(width[i]) == 1} - {0}):
-            rows = [i for i in idx if width[i] == {nf}]
-            total = np.zeros((len(rows), len(LETTERS)))
-            for f in range(nf):
-                rates = _rates(batch, lambda i, k, f=f: toks[i][k][f], rows)
-                total += np.log([[r[k] for k in LETTERS] for r in rates])
-            for r, i in enumerate(rows):
-                scores[i] = {k: float(total[r, q]) for q, k in enumerate(LETTERS)}
-    return directional(batch, scores, directions=ENDS)
+    return _halves(batch, {"": lambda train, test: _field_scores(batch, train, test)})
+
+
+def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+    """Per test row: rank votes and relative-value closeness of its candidates from the answers of its five
+    nearest training rows (sorted candidate values; same cell and question type)."""
+    vals = batch.memo("prior_values", lambda: [value_scale(p) for p in batch.rows])
+    key = lambda i: (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i])) \
+        if vals[i] is not None and all(np.isfinite(list(vals[i].values()))) else None
+    by_rank, by_value = {}, {}
+    pool: dict = {}
+    for i in train:
+        if key(i) is not None:
+            pool.setdefault(key(i), []).append(i)
+    for g, idx in pool.items():
+        X = np.array([[vals[i][k] for k in LETTERS] for i in idx])
+        S = np.sort(X, axis=1)
+        centre, spread = S.mean(1), np.maximum(S.std(1), 1e-9)
+        ans = np.array([vals[i][batch.rows[i].answer] for i in idx])
+        ans_rank = (X < ans[:, None] - 1e-12).sum(1)
+        ans_rel = (ans - centre) / spread
+        for i in (j for j in test if key(j) == g):
+            x = np.array([vals[i][k] for k in LETTERS])
+            d = np.sqrt(((S - np.sort(x)) ** 2).sum(1))
+            near = np.lexsort((np.arange(len(d)), d))[:NEIGHBOURS]
+            votes = Counter(ans_rank[near].tolist())
+            rank = (x[None, :] < x[:, None] - 1e-12).sum(1)
+            by_rank[i] = {k: float(votes.get(int(rank[q]), 0)) for q, k in enumerate(LETTERS)}
+            rel = (x - x.mean()) / max(float(x.std()), 1e-9)
+            by_value[i] = {k: -abs(float(rel[q]) - float(np.median(ans_rel[near]))) for q, k in enumerate(LETTERS)}
+    return by_rank, by_value
 
 
 @attack("nearest_set", ["scalar", "trajectory"], "nearest neighbours over candidate sets: the candidate at the rank "
-        "(or nearest to the relative value) the answers took in the five most similar candidate sets of other "
-        "recordings of the same cell and question type", family="prior", scope="batch")
+        "(or nearest to the relative value) the answers took in the five most similar candidate sets of the other "
+        "half of the recordings (same cell and question type)", family="prior", scope="batch")
 def _nearest_set(batch: Batch):
-    vals = [value_scale(p) for p in batch.rows]
-    by_rank: list = [None] * len(batch)
-    by_value: list = [None] * len(batch)
-    groups = batch.groups(lambda i: (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i]))
-                          if vals[i] is not None else None)
-    for idx in groups.values():
-        X = np.array([[vals[i][k] for k in LETTERS] for i in idx], dtype=float)
-        if not np.all(np.isfinite(X)):
-            continue
-        S = np.sort(X, axis=1)
-        centre = S.mean(1, keepdims=True)
-        spread = np.maximum(S.std(1, keepdims=True), 1e-9)
-        ans = np.array([vals[i][batch.rows[i].answer] for i in idx])
-        ans_rank = np.array([int((X[r] < ans[r] - 1e-12).sum()) for r in range(len(idx))])
-        ans_rel = (ans - centre[:, 0]) / spread[:, 0]
-        seqs = np.array([batch.obs[i].sequence for i in idx], dtype=object)
-        D = np.sqrt(((S[:, None, :] - S[None, :, :]) ** 2).sum(-1))
-        for r, i in enumerate(idx):
-            d = D[r].copy()
-            d[seqs == seqs[r]] = np.inf  # the row's own recording left out
-            ok = np.flatnonzero(np.isfinite(d))
-            if not len(ok):
-                continue
-            near = ok[np.lexsort((ok, d[ok]))][:NEIGHBOURS]
-            votes = Counter(ans_rank[near].tolist())
-            rank = {k: int((X[r] < X[r, q] - 1e-12).sum()) for q, k in enumerate(LETTERS)}
-            by_rank[i] = top({k: float(votes.get(rank[k], 0)) for k in LETTERS})
-            m = float(np.median(ans_rel[near]))
-            rel = (X[r] - centre[r, 0]) / spread[r, 0]
-            by_value[i] = top({k: -abs(float(rel[q]) - m) for q, k in enumerate(LETTERS)})
-    return Directional({"rank": by_rank, "value": by_value})
+    return _halves(batch, {"rank": lambda train, test: _nearest_sets(batch, train, test)[0],
+                           "value": lambda train, test: _nearest_sets(batch, train, test)[1]}, ends=("max",))

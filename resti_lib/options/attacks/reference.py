@@ -96,3 +96,60 @@ def majority_label(batch: Batch, train: list, test: list, key_of_row: Callable[[
             continue
         out[i] = top({c: float(counts[k].get(answer_key(v), 0)) for c, v in p.values.items()})
     return out
+
+
+# ------------------------------------------------------------------------------------ population features
+
+POPULATION_FEATURES = ("answer_quantile", "candidate_quantile", "answer_density", "candidate_density",
+                       "density_ratio", "answer_z")
+
+
+def population_features(batch: Batch, values: list, group_of: list, reference: np.ndarray) -> np.ndarray:
+    """Where each candidate stands in its population, against the answers of the ``reference`` rows
+    only (a boolean mask over the batch: a learned attacker's training fold) and never against its own
+    recording: (n_rows * 5, :data:`POPULATION_FEATURES`) in letter order, NaN where ``values[i]``
+    (``letter -> float``) or ``group_of[i]`` is None or the group has no reference answer.
+
+    Per candidate value x, among the reference rows of the same group from other recordings: the
+    quantile of x among their answers and among their candidates (mid-ranks), the log kernel density
+    of their answers and of their candidates at x (bandwidth from the group's candidates), the log ratio
+    of the two (where answers are denser than distractors), and x standardised by their answers'
+    mean and standard deviation (at least the bandwidth).
+    """
+    out = np.full((len(batch) * 5, len(POPULATION_FEATURES)), np.nan)
+    groups = batch.groups(lambda i: group_of[i] if values[i] is not None else None)
+    for idx in groups.values():
+        X = np.array([[values[i][k] for k in LETTERS] for i in idx], dtype=float)
+        seq = np.array([batch.obs[i].sequence for i in idx], dtype=object)
+        ref = np.array([bool(reference[i]) for i in idx])
+        if not ref.any():
+            continue
+        ans = np.array([values[i][batch.rows[i].answer] for i in idx], dtype=float)[ref]
+        cands = X[ref].ravel()
+        seq_a, seq_c = seq[ref], np.repeat(seq[ref], 5)
+        h = bandwidth(X.ravel())
+        Ma = (seq[:, None] != seq_a[None, :]).astype(float)            # (G, Ra): other recordings only
+        Mc = (seq[:, None] != seq_c[None, :]).astype(float)            # (G, Rc)
+        na, nc = Ma.sum(1), Mc.sum(1)
+        # the reference answers' mean and spread without the row's recording, from per-recording sums
+        codes, inv = np.unique(np.concatenate([seq_a, seq]).astype(str), return_inverse=True)
+        own = inv[len(ans):]
+        n_own = np.bincount(inv[:len(ans)], minlength=len(codes))[own]
+        s1 = ans.sum() - np.bincount(inv[:len(ans)], weights=ans, minlength=len(codes))[own]
+        s2 = (ans ** 2).sum() - np.bincount(inv[:len(ans)], weights=ans ** 2, minlength=len(codes))[own]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = s1 / (len(ans) - n_own)
+            sd = np.sqrt(np.maximum(s2 / (len(ans) - n_own) - mean ** 2, 0.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for k in range(5):
+                x = X[:, k]
+                da = x[:, None] - ans[None, :]
+                dc = x[:, None] - cands[None, :]
+                qa = (((da > 0) + 0.5 * (da == 0)) * Ma).sum(1) / na
+                qc = (((dc > 0) + 0.5 * (dc == 0)) * Mc).sum(1) / nc
+                fa = np.log((np.exp(-0.5 * (da / h) ** 2) * Ma).sum(1) / na + 1e-12)
+                fc = np.log((np.exp(-0.5 * (dc / h) ** 2) * Mc).sum(1) / nc + 1e-12)
+                feats = np.column_stack([qa, qc, fa, fc, fa - fc, (x - mean) / np.maximum(sd, h)])
+                feats[na == 0] = np.nan
+                out[np.array(idx) * 5 + k] = feats
+    return out

@@ -14,7 +14,7 @@ attack) and ``large_effect``.
 
 ``large_effect`` flags a blind accuracy too large to pass unnoticed where the table's correction cannot
 reach it: at least :data:`LARGE_EFFECT_AT` (35%) on at least :data:`LARGE_EFFECT_MIN_ROWS` picked rows,
-with the lower end of the two-sided 95% exact (Clopper-Pearson) interval of the cell's accuracy above
+with the lower end of the two-sided 99% exact (Clopper-Pearson) interval of the cell's accuracy above
 chance (the interval widened for the attack's own comparisons, as its p-value is). A significant row
 can be a large effect too; the flag matters where the cell is small and the table large.
 """
@@ -44,7 +44,7 @@ HEADLINE_COLUMNS = ["task", "source", "n_rows", "significant", "attack", "family
 OPTION_ONLY = ("option",)
 LARGE_EFFECT_AT = 0.35        # a blind accuracy this large is flagged ...
 LARGE_EFFECT_MIN_ROWS = 20    # ... on at least this many picked rows ...
-LARGE_EFFECT_LEVEL = 0.95     # ... when the exact interval at this level lies above chance
+LARGE_EFFECT_LEVEL = 0.99     # ... when the exact interval at this level lies above chance
 LARGE_EFFECT_SHOWN = 3        # large-effect attacks named per headline cell
 
 
@@ -86,7 +86,12 @@ def tie_aware_p(hits: float, ties: Iterable[int]) -> float:
     returns ``P[S >= hits]`` by exact convolution (the ``k = 1`` part in closed form). With no ties it
     is :func:`binom_p`.
     """
-    n = Counter(int(k) for k in ties)
+    return tie_aware_p_counts(hits, Counter(int(k) for k in ties))
+
+
+def tie_aware_p_counts(hits: float, n: dict) -> float:
+    """:func:`tie_aware_p` from the number of rows of each tie size (``{k: rows picking k letters}``)."""
+    n = {int(k): int(v) for k, v in n.items() if v}
     if not n:
         return 1.0
     w_obs = round(hits * 60)
@@ -198,6 +203,17 @@ def run_picks(rows: list, names: Iterable[str] | None = None, *, records: list[d
 
 # ------------------------------------------------------------------------------------ the table
 
+_TIES = range(1, 6)
+
+
+def _aggregate(picks: pd.DataFrame, keys: list) -> pd.DataFrame:
+    """Per ``keys`` group (and direction, in order of appearance): rows, picked rows, expected hits and
+    picked rows by size of the picked set (``t1`` .. ``t5``)."""
+    return picks.groupby(keys + ["direction"], sort=False).agg(
+        n_rows=("hit", "size"), picked=("_picked", "sum"), hits=("hit", "sum"),
+        **{f"t{k}": (f"_t{k}", "sum") for k in _TIES}).reset_index()
+
+
 def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | None = None, task_order: tuple = ()
                     ) -> pd.DataFrame:
     """Aggregate per-row picks into the attack table (see the module docstring for the columns).
@@ -214,45 +230,54 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
         picks = picks.assign(family=picks["attack"].map(family_of))
     if "tied" not in picks.columns:
         picks = picks.assign(tied=picks["pick"].map(lambda s: 0 if pd.isna(s) else len(s)))
-    picks = picks.assign(hit=picks["hit"].astype(float))
     if "direction" not in picks.columns:
         picks = picks.assign(direction="")
-    out = []
-    for (name, task), g in picks.groupby(["attack", "task"], sort=False):
-        family = g["family"].iloc[0]
-        for source, gs in [(s, gs) for s, gs in g.groupby("source", sort=False)] + [("ALL", g)]:
-            options = []
-            for direction, gd in gs.groupby("direction", sort=False):
-                n_rows = len(gd)
-                made = gd[gd["pick"].notna()]
-                picked = len(made)
-                hits = float(made["hit"].sum())
-                ties = made["tied"].astype(int).tolist()
-                if name == "constant_letter" and source == "ALL":
-                    # best constant letter over the whole task, not the union of per-source choices
-                    counts = Counter(gd["answer"])
-                    hits = float(max(counts.values())) if counts else 0.0
-                    picked, ties = n_rows, [1] * n_rows
-                options.append((direction, n_rows, picked, hits, ties))
-            options = [o for o in options if o[2] > 0] or options[:1]  # directions that apply to the cell
-            # the direction with the most expected hits (the first on a tie), Bonferroni over directions
-            direction, n_rows, picked, hits, ties = max(options, key=lambda o: (o[3], -options.index(o)))
-            factor = tests.get(name, 1) * len(options)
-            p = min(1.0, tie_aware_p(hits, ties) * factor) if picked else 1.0
-            out.append({"attack": name, "family": family, "task": task, "source": source, "n_rows": n_rows,
-                        "coverage": picked / n_rows if n_rows else 0.0, "picked": picked, "hits": hits,
-                        "accuracy": hits / picked if picked else float("nan"), "chance": CHANCE, "p_value": p,
-                        "tied_rows": int(sum(1 for k in ties if k > 1)), "direction": direction,
-                        "_factor": factor})
-    df = pd.DataFrame(out)
-    df = df[df["picked"] > 0]
+    made = picks["pick"].notna()
+    tied = picks["tied"].astype(int)
+    picks = picks.assign(hit=picks["hit"].astype(float).where(made, 0.0), _picked=made,
+                         **{f"_t{k}": made & (tied == k) for k in _TIES})
+    by_source = _aggregate(picks, ["attack", "task", "source"])
+    pooled = _aggregate(picks, ["attack", "task"]).assign(source="ALL")
+    const = pooled["attack"] == "constant_letter"
+    if const.any():  # the best constant letter over the whole task, not the union of per-source choices
+        best = picks[picks["attack"] == "constant_letter"].groupby(["task", "direction"], sort=False)["answer"].agg(
+            lambda a: float(a.value_counts().max()))
+        rows = pooled.loc[const]
+        pooled.loc[const, "hits"] = [best[(t, d)] for t, d in zip(rows["task"], rows["direction"])]
+        pooled.loc[const, "picked"] = rows["n_rows"]
+        pooled.loc[const, [f"t{k}" for k in _TIES]] = 0
+        pooled.loc[const, "t1"] = rows["n_rows"]
+    agg = pd.concat([by_source, pooled], ignore_index=True)
+    # per cell: the direction with the most expected hits among those that apply (the first on a tie)
+    agg["_order"] = np.arange(len(agg))
+    agg["_applies"] = agg["picked"] > 0
+    cell = ["attack", "task", "source"]
+    n_applies = agg.groupby(cell, sort=False)["_applies"].transform("sum")
+    agg["_options"] = np.where(n_applies > 0, n_applies, 1)
+    agg = agg[agg["_applies"] | (n_applies == 0)]
+    agg = agg.sort_values(["hits", "_order"], ascending=[False, True], kind="stable").drop_duplicates(cell)
+    agg = agg[agg["picked"] > 0].sort_values("_order", kind="stable")
+    agg["_factor"] = agg["attack"].map(lambda n: tests.get(n, 1)) * agg["_options"]
+    ties = agg[[f"t{k}" for k in _TIES]].to_numpy(int)
+    p = [tie_aware_p_counts(h, dict(zip(_TIES, t))) for h, t in zip(agg["hits"], ties)]
+    family = picks.drop_duplicates("attack").set_index("attack")["family"]
+    df = pd.DataFrame({"attack": agg["attack"].to_numpy(), "family": agg["attack"].map(family).to_numpy(),
+                       "task": agg["task"].to_numpy(), "source": agg["source"].to_numpy(),
+                       "n_rows": agg["n_rows"].to_numpy(int), "picked": agg["picked"].to_numpy(int),
+                       "hits": agg["hits"].to_numpy(float), "chance": CHANCE,
+                       "p_value": np.minimum(1.0, np.array(p) * agg["_factor"].to_numpy()),
+                       "tied_rows": ties[:, 1:].sum(1), "direction": agg["direction"].to_numpy(),
+                       "_factor": agg["_factor"].to_numpy()})
+    df["coverage"] = df["picked"] / df["n_rows"]
+    df["accuracy"] = df["hits"] / df["picked"]
     fam = {f: i for i, f in enumerate(FAMILIES)}
     order = {n: (fam.get(a.family, len(fam)), i) for i, (n, a) in enumerate(ATTACKS.items())}
     rank = {t: i for i, t in enumerate(task_order)}
     rank.update({t: len(rank) + i for i, t in enumerate(sorted(set(df["task"]) - set(rank)))})
     src_order = {s: i for i, s in enumerate(SOURCES)}
+    src_order["ALL"] = len(SOURCES) + 1
     df = df.assign(_a=df["attack"].map(lambda n: order.get(n, (len(fam), len(order)))), _t=df["task"].map(rank),
-                   _s=df["source"].map(lambda s: src_order.get(s, 99)))
+                   _s=df["source"].map(lambda s: src_order.get(s, len(SOURCES))))
     df = df.sort_values(["_t", "_a", "_s"], kind="stable").drop(columns=["_a", "_t", "_s"]).reset_index(drop=True)
     df["p_holm"] = holm_adjusted(df["p_value"])
     df["significant"] = df["p_holm"] <= alpha
