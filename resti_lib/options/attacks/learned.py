@@ -71,7 +71,7 @@ from .scoring import attack_table, picks_frame
 NAME = "learned_blind"
 QUESTION_NAME = "learned_question"
 SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
-FIT_THREADS = 2    # threads that grow the population attacker's trees
+FIT_THREADS = 2    # threads that grow the population attacker's trees (a tree does not depend on them)
 LABELS = tuple(V.RELATION_LABELS)
 
 
@@ -156,31 +156,35 @@ def _geometry(p: ParsedRow) -> tuple[np.ndarray, np.ndarray]:
 
 def _column_stats(x: np.ndarray) -> np.ndarray:
     """Within-row statistics of one summary column x (5,): rank, gaps, z, |z|, medoid, is-min/max."""
-    out = np.full((5, 8), np.nan)
-    if np.isnan(x).any():
-        return out
-    order = np.argsort(x, kind="stable")
-    ranks = np.empty(5)
-    ranks[order] = np.arange(1, 6)
-    xs = x[order]
-    rng_ = xs[-1] - xs[0]
-    scale = rng_ if rng_ > 0 else 1.0
-    gaps_lo = np.empty(5)
-    gaps_hi = np.empty(5)
-    gaps_lo[order] = np.concatenate([[np.nan], np.diff(xs)]) / scale
-    gaps_hi[order] = np.concatenate([np.diff(xs), [np.nan]]) / scale
-    sd = x.std()
-    z = (x - x.mean()) / sd if sd > 0 else np.zeros(5)
-    med = np.abs(x[:, None] - x[None, :]).sum(1) / (scale * 4)
-    out[:, 0] = ranks
-    out[:, 1] = gaps_lo
-    out[:, 2] = gaps_hi
-    out[:, 3] = z
-    out[:, 4] = np.abs(z)
-    out[:, 5] = med
-    out[:, 6] = np.minimum(np.nan_to_num(gaps_lo, nan=np.inf), np.nan_to_num(gaps_hi, nan=np.inf))
-    out[:, 7] = np.abs(x - np.median(x)) / scale
-    return out
+    return _block_stats(np.asarray(x, float)[:, None])
+
+
+def _block_stats(M: np.ndarray) -> np.ndarray:
+    """:func:`_column_stats` of every column of ``M`` (5, m) at once: (5, 8 m), the eight statistics of
+    column 0, then of column 1, ... (a column with a NaN gives NaN)."""
+    m = M.shape[1]
+    out = np.full((5, m, 8), np.nan)
+    ok = ~np.isnan(M).any(axis=0)
+    if ok.any():
+        X = M[:, ok]
+        order = np.argsort(X, axis=0, kind="stable")
+        ranks = np.empty_like(X)
+        np.put_along_axis(ranks, order, np.repeat(np.arange(1.0, 6.0)[:, None], X.shape[1], axis=1), axis=0)
+        xs = np.take_along_axis(X, order, axis=0)
+        span = xs[-1] - xs[0]
+        scale = np.where(span > 0, span, 1.0)
+        d = np.diff(xs, axis=0)
+        nan_row = np.full((1, X.shape[1]), np.nan)
+        gaps_lo, gaps_hi = np.empty_like(X), np.empty_like(X)
+        np.put_along_axis(gaps_lo, order, np.vstack([nan_row, d]) / scale, axis=0)
+        np.put_along_axis(gaps_hi, order, np.vstack([d, nan_row]) / scale, axis=0)
+        sd = X.std(axis=0)
+        z = np.where(sd > 0, (X - X.mean(axis=0)) / np.where(sd > 0, sd, 1.0), 0.0)
+        med = np.abs(X[:, None, :] - X[None, :, :]).sum(1) / (scale * 4)
+        near = np.minimum(np.nan_to_num(gaps_lo, nan=np.inf), np.nan_to_num(gaps_hi, nan=np.inf))
+        out[:, ok] = np.stack([ranks, gaps_lo, gaps_hi, z, np.abs(z), med, near,
+                               np.abs(X - np.median(X, axis=0)) / scale], axis=2)
+    return out.reshape(5, m * 8)
 
 
 def _group_stats(p: ParsedRow) -> np.ndarray:
@@ -260,7 +264,7 @@ def row_features(p: ParsedRow, tasks: tuple = ()) -> np.ndarray:
                             (lens == lens.min()) & ((lens == lens.min()).sum() == 1),
                             (lens == lens.max()) & ((lens == lens.max()).sum() == 1)])
     summ = _summaries(p)
-    stats = np.concatenate([_column_stats(summ[:, j]) for j in range(SUMMARY_SLOTS)], axis=1)
+    stats = _block_stats(summ)
     angle = np.full((n, 2), np.nan)
     vals = [p.values[k] for k in LETTERS]
     if all(isinstance(v, V.Scalar) and v.is_angle for v in vals):
@@ -281,7 +285,7 @@ def row_features(p: ParsedRow, tasks: tuple = ()) -> np.ndarray:
     order = order_concordance(p)
     order = np.array([[order[k]] for k in LETTERS]) if order is not None else np.full((n, 1), np.nan)
     geo, rot = _geometry(p)
-    geo_stats = np.concatenate([_column_stats(geo[:, j]) for j in range(geo.shape[1])], axis=1)
+    geo_stats = _block_stats(geo)
     return np.concatenate([task, src, letter, strf, summ, stats, _group_stats(p), angle, lab, traj, geo, geo_stats,
                            rot, order], axis=1)
 
@@ -382,8 +386,12 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
             Xf = np.concatenate([X, fold_features(mask)], axis=1)
             Xf = Xf[:, ~np.all(np.isnan(Xf[tr]), axis=0)]
         model = (make_model or _model)(cfg)
-        with threadpool_limits(1):  # one thread: reproducible sums and no oversubscription
+        # one OpenMP thread for the gradient boosting (its threads spin while they wait, and a busy
+        # machine stalls them); the population attacker's forest grows its trees on FIT_THREADS joblib
+        # threads, which do not change a tree
+        with threadpool_limits(1):
             model.fit(Xf[tr], y[tr])
+        with threadpool_limits(1):
             if hasattr(model, "n_jobs"):
                 model.n_jobs = 1  # trees' votes summed in one order
             proba = model.predict_proba(Xf[te])[:, list(model.classes_).index(True)]
