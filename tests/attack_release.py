@@ -170,7 +170,7 @@ SPATIAL = ("Left", "Right", "Closer", "Farther", "Directly above")
 MIRRORED = {"Left": "Right", "Right": "Left", "Closer": "Farther", "Farther": "Closer"}
 RECORDING_PLANTS = ("rate_window", "path_length", "turn_sum", "box_edge", "pose_track", "converse",
                     "travel_direction", "fewest_significant", "shortest", "last_digit", "string_rate", "field_rate",
-                    "nearest_set")
+                    "field_density", "nearest_set")
 STRING_POOL = tuple(f"{0.50 + 0.05 * i:.2f}m" for i in range(20))
 
 
@@ -258,17 +258,18 @@ def _scannet_recording(rng, r: int, plant) -> list:
     noun = NOUNS[r % len(NOUNS)]
     lwh = lambda: np.exp(rng.normal(np.log([1.2, 0.8, 0.9]), 0.25))
 
-    def box(edges):
+    def box(edges, spread=1.0):
         R = Rotation.from_euler("y", rng.uniform(-180, 180), degrees=True).as_matrix()
-        return V.format_box(rng.normal([0, 0.3, 3], [1, 0.2, 0.5]), edges, R)
+        return V.format_box(rng.normal([0, 0.3, 3], np.array([1, 0.2, 0.5]) * spread), edges, R)
 
     edges = lwh()
     if plant == "field_rate":  # the answer's height prints one of two common values
         edges[2] = float(rng.choice([0.75, 0.9]))
     t_box = round(t0 + w / 2, 1)
     add("3D Video Grounding", f"At {V.format_seconds(t_box)} seconds, what is the oriented 3D bounding box of the "
-        f"{noun} in an OpenCV camera frame (+X right, +Y down, +Z forward)?", _distinct(lambda: box(lwh()),
-                                                                                     first=box(edges)), 0,
+        f"{noun} in an OpenCV camera frame (+X right, +Y down, +Z forward)?",
+        # field_density: the answer's centre is always near the middle of where the distractors' centres fall
+        _distinct(lambda: box(lwh()), first=box(edges, 0.05 if plant == "field_density" else 1.0)), 0,
         t_box, t_box)
     length = float(np.max(V.parse(rows[-1]["Answer Detail"]).lwh)) if plant == "box_edge" else float(np.max(lwh()))
     if plant == "string_rate":  # answers come from one half of a pool of strings, distractors from the other

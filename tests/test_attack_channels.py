@@ -54,6 +54,8 @@ PLANTED = {
     # half of the recordings tells them apart wherever the answer string was seen there
     "string_rate": ("prior", "string_rate", {"Dimensional Measurement": 0.9}),
     "field_rate": ("prior", "field_rate", {"3D Video Grounding": 0.8}),
+    # the answer's box centre sits within 5% of the distractors' spread of the middle: every field says so
+    "field_density": ("prior", "field_density", {"3D Video Grounding": 0.8}),
     # slow scenes answer their smallest candidate, fast ones their largest: min and max get half each
     "nearest_set": ("prior", "nearest_set", {S: 0.9}),
 }

@@ -11,6 +11,9 @@ leave-one-out count hand every row its own answer).
   towards chance; the candidate of highest (or lowest) rate;
 - ``field_rate``: the same rate per printed field (the j-th number of the candidate, e.g. a pose's
   ``r31``) within the task/source cell, summed in log over the fields (a field prior);
+- ``field_density``: a field prior on values: per printed field of a box or a pose, the kernel
+  density of the candidate's value among the answers of the other half (or its ratio to the density
+  among their candidates), summed in log over the fields;
 - ``nearest_set``: nearest neighbours over candidate sets: the five rows of the other half of the
   cell (same question type) whose sorted candidate values lie nearest to the row's; the candidate at
   the rank their answers took most often (``rank``) or nearest to their answers' median relative to
@@ -24,10 +27,11 @@ from collections import Counter
 import numpy as np
 
 from ... import LETTERS
+from ... import values as V
 from .batch import Batch
 from .common import CHANCE, ENDS, Directional, extreme
 from .features import flat_text, question_kind, tokens, value_scale
-from .reference import split_halves
+from .reference import bandwidth, split_halves
 from .registry import attack
 
 SHRINK = 2.0       # pseudo-offers at chance added to every rate (a string offered once says little)
@@ -102,6 +106,49 @@ def _field_scores(batch: Batch, train: list, test: list) -> dict:
         scope="batch")
 def _field_rate(batch: Batch):
     return _halves(batch, {"": lambda train, test: _field_scores(batch, train, test)})
+
+
+def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+    """Per test row of a cell of structured answers (boxes, poses: every candidate prints the same fields):
+    the sum over the fields of the log kernel density of the candidate's field value among the training
+    rows' answers (``density``), and of its ratio to the density among their candidates (``ratio``)."""
+    vecs = batch.memo("prior_vectors", lambda: [
+        np.array([p.values[k].vector() for k in LETTERS], float)
+        if all(isinstance(v, (V.Box, V.Pose)) for v in p.values.values())
+        and len({len(v.vector()) for v in p.values.values()}) == 1 else None for p in batch.rows])
+    cell = lambda i: (batch.rows[i].task, batch.rows[i].source, vecs[i].shape[1]) if vecs[i] is not None else None
+    density, ratio = {}, {}
+    pool: dict = {}
+    for i in train:
+        if cell(i) is not None:
+            pool.setdefault(cell(i), []).append(i)
+    for g, idx in pool.items():
+        rows = [i for i in test if cell(i) == g]
+        if not rows:
+            continue
+        C = np.stack([vecs[i] for i in idx])                                  # (m, 5, F)
+        A = np.stack([vecs[i][LETTERS.index(batch.rows[i].answer)] for i in idx])  # (m, F)
+        T = np.stack([vecs[i] for i in rows])                                 # (t, 5, F)
+        logd, logr = np.zeros(T.shape[:2]), np.zeros(T.shape[:2])
+        for f in range(T.shape[2]):
+            h = bandwidth(C[:, :, f].ravel())
+            fa = np.exp(-0.5 * ((T[:, :, f, None] - A[None, None, :, f]) / h) ** 2).mean(-1)
+            fc = np.exp(-0.5 * ((T[:, :, f, None] - C[:, :, f].ravel()[None, None, :]) / h) ** 2).mean(-1)
+            logd += np.log(fa + 1e-12)
+            logr += np.log(fa + 1e-12) - np.log(fc + 1e-12)
+        for r, i in enumerate(rows):
+            density[i] = {k: float(logd[r, q]) for q, k in enumerate(LETTERS)}
+            ratio[i] = {k: float(logr[r, q]) for q, k in enumerate(LETTERS)}
+    return density, ratio
+
+
+@attack("field_density", ["box", "pose"], "box or pose whose printed fields are most (or least) typical, field by "
+        "field, of the answers of the other half of the recordings of the task/source cell (log kernel density "
+        "summed over the fields, or its ratio to the density of their candidates; in every direction)",
+        family="prior", scope="batch")
+def _field_density(batch: Batch):
+    return _halves(batch, {"density": lambda train, test: _field_densities(batch, train, test)[0],
+                           "ratio": lambda train, test: _field_densities(batch, train, test)[1]})
 
 
 def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
