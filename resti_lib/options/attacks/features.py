@@ -4,6 +4,7 @@ states (read through :mod:`resti_lib.options.observables`, never parsed a second
 
 from __future__ import annotations
 
+import functools
 import re
 
 import numpy as np
@@ -168,9 +169,10 @@ def label_name(v) -> str:
 
 # ------------------------------------------------------------------------------------ printing
 
-def tokens(s: str) -> list[str]:
-    """The printed numbers of a candidate string."""
-    return V.number_tokens(s)
+@functools.lru_cache(maxsize=1 << 16)
+def tokens(s: str) -> tuple[str, ...]:
+    """The printed numbers of a candidate string (remembered: every formatting attack reads them)."""
+    return tuple(V.number_tokens(s))
 
 
 def decimals(tok: str) -> int:

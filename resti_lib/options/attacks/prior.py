@@ -31,7 +31,7 @@ from ... import values as V
 from .batch import Batch
 from .common import CHANCE, ENDS, Directional, extreme
 from .features import flat_text, question_kind, tokens, value_scale
-from .reference import bandwidth, split_halves
+from .reference import bandwidth, halves
 from .registry import attack
 
 SHRINK = 2.0       # pseudo-offers at chance added to every rate (a string offered once says little)
@@ -59,16 +59,19 @@ def _rates(batch: Batch, key_of, train: list, test: list) -> dict:
     return out
 
 
-def _halves(batch: Batch, variants: dict, ends=ENDS) -> Directional:
-    """Every variant's scores (``variants[name](train, test) -> {row: letter -> score}``) learned on one
-    half and tested on the other, in each of ``ends``: one direction per (variant, end, half)."""
+def _halves(batch: Batch, variants: tuple, scores_of, ends=ENDS) -> Directional:
+    """Rules learned on one half and tested on the other (:func:`reference.halves`): ``scores_of(train,
+    test)`` returns ``{variant: {row: letter -> score}}``, once per half; one direction per (half,
+    variant, end)."""
     out = Directional()
-    for name, scores_of in variants.items():
-        for end in ends:
-            halves = split_halves(batch, lambda train, test, f=scores_of, end=end:
-                                  {i: extreme(sc, end) for i, sc in f(train, test).items()})
-            for half, picks in halves.items():
-                out[" ".join(x for x in (name, end, half) if x)] = picks
+    for half, train, test in halves(batch):
+        scores = scores_of(train, test)
+        for variant in variants:
+            for end in ends:
+                picks: list = [None] * len(batch)
+                for i, sc in scores[variant].items():
+                    picks[i] = extreme(sc, end)
+                out[" ".join(x for x in (variant, end, half) if x)] = picks
     return out
 
 
@@ -78,8 +81,8 @@ def _halves(batch: Batch, variants: dict, ends=ENDS) -> Directional:
 def _string_rate(batch: Batch):
     string = lambda i, k: flat_text(batch.rows[i].candidates[k])
     value = lambda i, k: (batch.obs[i].quantity, batch.rows[i].values[k].key())
-    return _halves(batch, {"string": lambda train, test: _rates(batch, string, train, test),
-                           "value": lambda train, test: _rates(batch, value, train, test)})
+    return _halves(batch, ("string", "value"), lambda train, test: {
+        "string": _rates(batch, string, train, test), "value": _rates(batch, value, train, test)})
 
 
 def _field_scores(batch: Batch, train: list, test: list) -> dict:
@@ -105,7 +108,7 @@ def _field_scores(batch: Batch, train: list, test: list) -> dict:
         "of the task/source cell, summed in log over the fields (in every direction)", family="prior",
         scope="batch")
 def _field_rate(batch: Batch):
-    return _halves(batch, {"": lambda train, test: _field_scores(batch, train, test)})
+    return _halves(batch, ("",), lambda train, test: {"": _field_scores(batch, train, test)})
 
 
 def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
@@ -147,8 +150,8 @@ def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]
         "summed over the fields, or its ratio to the density of their candidates; in every direction)",
         family="prior", scope="batch")
 def _field_density(batch: Batch):
-    return _halves(batch, {"density": lambda train, test: _field_densities(batch, train, test)[0],
-                           "ratio": lambda train, test: _field_densities(batch, train, test)[1]})
+    return _halves(batch, ("density", "ratio"),
+                   lambda train, test: dict(zip(("density", "ratio"), _field_densities(batch, train, test))))
 
 
 def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
@@ -185,5 +188,5 @@ def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
         "(or nearest to the relative value) the answers took in the five most similar candidate sets of the other "
         "half of the recordings (same cell and question type)", family="prior", scope="batch")
 def _nearest_set(batch: Batch):
-    return _halves(batch, {"rank": lambda train, test: _nearest_sets(batch, train, test)[0],
-                           "value": lambda train, test: _nearest_sets(batch, train, test)[1]}, ends=("max",))
+    return _halves(batch, ("rank", "value"),
+                   lambda train, test: dict(zip(("rank", "value"), _nearest_sets(batch, train, test))), ends=("max",))

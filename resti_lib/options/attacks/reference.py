@@ -61,20 +61,29 @@ def loo_density(batch: Batch, values: list, pop_key, *, noun_key=None) -> list:
     return out
 
 
+def halves(batch: Batch) -> list[tuple[str, list, list]]:
+    """The two halves of the source sequences (by a hash of the sequence name), as ``(direction name,
+    training rows, test rows)``: ``"half 1 from half 0"`` tests the rows of half 1, then the reverse."""
+    half = [zlib.crc32(str(o.sequence).encode("utf-8")) % 2 for o in batch.obs]
+    out = []
+    for test_half in (1, 0):
+        train = [i for i, h in enumerate(half) if h != test_half]
+        test = [i for i, h in enumerate(half) if h == test_half]
+        out.append((f"half {test_half} from half {1 - test_half}", train, test))
+    return out
+
+
 def split_halves(batch: Batch, learn: Callable[[list, list], dict]) -> Directional:
     """A rule learned on one half of the source sequences and tested on the other, both ways: direction
     ``"half 1 from half 0"`` picks in the rows of half 1 with what ``learn(train, test)`` (row indices)
     returns for them (``{row: pick}``), and vice versa. A row's pick never depends on the answers of its
     own half, so each direction's test is exact; the table keeps the better one (Bonferroni over two)."""
-    half = [zlib.crc32(str(o.sequence).encode("utf-8")) % 2 for o in batch.obs]
     out = Directional()
-    for test_half in (1, 0):
-        train = [i for i, h in enumerate(half) if h != test_half]
-        test = [i for i, h in enumerate(half) if h == test_half]
+    for name, train, test in halves(batch):
         picks: list = [None] * len(batch)
         for i, pk in learn(train, test).items():
             picks[i] = pk
-        out[f"half {test_half} from half {1 - test_half}"] = picks
+        out[name] = picks
     return out
 
 
