@@ -51,13 +51,14 @@ def main() -> None:
           f"({(full_w - fast_w) / full_w:.0%} of the run)")
 
     from resti_lib.io.benchmark import load_release
-    from resti_lib.options.attacks import ATTACKS, FAMILIES, _run_one, make_batch, parse_rows, select
+    from resti_lib.options.attacks import ATTACKS, FAMILIES, make_batch, parse_rows, run_one, select
     from resti_lib.release.verify import verify_release
+    from resti_lib.tasks import interface
 
     rel, w_load, c_load = _timed(lambda: load_release(src, strict=False))
     records = rel.accepted.to_dict("records")
     _, w_ver, c_ver = _timed(lambda: verify_release(rel))
-    batch, w_parse, c_parse = _timed(lambda: make_batch(parse_rows(records), records)[0])
+    batch, w_parse, c_parse = _timed(lambda: make_batch(parse_rows(records), records, iface=interface())[0])
     _, w_obs, c_obs = _timed(lambda: batch.obs)
     print("in process, by stage and family:")
     for name, w, c in (("load", w_load, c_load), ("verify", w_ver, c_ver), ("parse", w_parse, c_parse),
@@ -65,7 +66,7 @@ def main() -> None:
         print(f"  {name:18s} wall {w:6.2f} s  cpu {c:6.2f} s  {n / w:8.0f} rows/s")
     for fam in FAMILIES:
         names = select(fam)
-        _, w, c = _timed(lambda names=names: [_run_one(ATTACKS[a], batch) for a in names])
+        _, w, c = _timed(lambda names=names: [run_one(ATTACKS[a], batch) for a in names])
         print(f"  {fam:18s} wall {w:6.2f} s  cpu {c:6.2f} s  {n / w:8.0f} rows/s  ({len(names)} attacks)")
 
 

@@ -253,7 +253,7 @@ def test_v5_letter_order_reveals_the_answer(resti_v5_dir):
 
 
 def test_nearest_questions_match_brute_force():
-    from resti_lib.options.readers import nearest_questions
+    from resti_lib.options.attacks.question import nearest_questions
 
     rng = np.random.default_rng(5)
     vocab = [f"w{i}" for i in range(12)]
@@ -270,7 +270,7 @@ def test_printed_in_agrees_with_a_boundary_regex():
     import random
     import re
 
-    from resti_lib.options.readers import _printed_in
+    from resti_lib.options.attacks.features import printed_in
 
     rnd = random.Random(7)
     alphabet = "012.-(m"
@@ -279,8 +279,8 @@ def test_printed_in_agrees_with_a_boundary_regex():
         s = "".join(rnd.choice(alphabet) for _ in range(rnd.randint(1, 4)))
         text = "".join(rnd.choice(alphabet) for _ in range(rnd.randint(0, 30)))
         expect = re.search(r"(?<![\d.])" + re.escape(s) + r"(?!\d)", text) is not None
-        assert _printed_in(s, text) == expect, (s, text)
+        assert printed_in(s, text) == expect, (s, text)
         hits += expect
     assert 400 < hits < 3600  # both outcomes are exercised
-    assert _printed_in("1.25", "moved1.25m") and not _printed_in("1.25", "moved11.25m")
-    assert not _printed_in("1.25", "1.250m") and _printed_in("1.25", "at1.25.")
+    assert printed_in("1.25", "moved1.25m") and not printed_in("1.25", "moved11.25m")
+    assert not printed_in("1.25", "1.250m") and printed_in("1.25", "at1.25.")

@@ -104,7 +104,7 @@ def test_learned_question_attacker_reaches_the_small_cells(v5_rows, v5_table):
 def test_implied_rate_is_a_speed_over_the_window(v5_rows):
     """A Displacement distractor implies a speed over the question's window; on v5 the window is stated in
     every Displacement question and the implied speeds of answers stay physical."""
-    from resti_lib.options.readers import implied_rate
+    from resti_lib.options.attacks.features import implied_rate
 
     speeds = []
     for r in v5_rows:

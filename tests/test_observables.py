@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from resti_lib import values as V
+from resti_lib.options.attacks.features import implied_rate, noun_of, premise_parts, question_kind, repeats_premise
 from resti_lib.options.observables import observables_of
-from resti_lib.options.readers import implied_rate, noun_of, premise_parts, question_kind, repeats_premise
 from resti_lib.tasks import interface as _interface
 from tests.helpers import row
 

@@ -1,0 +1,192 @@
+"""Family ``prior``: what the other recordings of the release say about a printed candidate.
+
+Every rule here is learned on one half of the recordings (source sequences) and tested on the other,
+both ways (:func:`resti_lib.options.attacks.reference.split_halves`): a rate or a neighbour learned
+leaving only the row's own recording out would make the rows choose for each other, and rows that
+share their luck make a binomial test far too confident (two labels near a tie at the bottom of a
+leave-one-out count hand every row its own answer).
+
+- ``string_rate``: how often a candidate's printed string (``string``, anywhere in the release) or
+  value (``value``, among questions of the same quantity) is the answer when it is offered, shrunk
+  towards chance; the candidate of highest (or lowest) rate;
+- ``field_rate``: the same rate per printed field (the j-th number of the candidate, e.g. a pose's
+  ``r31``) within the task/source cell, summed in log over the fields (a field prior);
+- ``field_density``: a field prior on values: per printed field of a box or a pose, the kernel
+  density of the candidate's value among the answers of the other half (or its ratio to the density
+  among their candidates), summed in log over the fields;
+- ``nearest_set``: nearest neighbours over candidate sets: the five rows of the other half of the
+  cell (same question type) whose sorted candidate values lie nearest to the row's; the candidate at
+  the rank their answers took most often (``rank``) or nearest to their answers' median relative to
+  their sets (``value``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from ... import LETTERS
+from ... import values as V
+from .batch import Batch
+from .common import CHANCE, ENDS, Directional, extreme
+from .features import flat_text, question_kind, tokens, value_scale
+from .reference import bandwidth, halves
+from .registry import attack
+
+SHRINK = 2.0       # pseudo-offers at chance added to every rate (a string offered once says little)
+NEIGHBOURS = 5
+
+
+def _rates(batch: Batch, key_of, train: list, test: list) -> dict:
+    """Per test row: ``letter -> rate`` at which the candidate's key (``key_of(i, letter)``; None: the row
+    has no rate) is the answer when offered in the training rows: (answers + SHRINK/5) / (offers + SHRINK)."""
+    offered: Counter = Counter()
+    answered: Counter = Counter()
+    for i in train:
+        p = batch.rows[i]
+        for k in LETTERS:
+            x = key_of(i, k)
+            if x is not None:
+                offered[x] += 1
+                answered[x] += k == p.answer
+    out = {}
+    for i in test:
+        ks = {k: key_of(i, k) for k in LETTERS}
+        if any(x is None for x in ks.values()):
+            continue
+        out[i] = {k: (answered[x] + SHRINK * CHANCE) / (offered[x] + SHRINK) for k, x in ks.items()}
+    return out
+
+
+def _halves(batch: Batch, variants: tuple, scores_of, ends=ENDS) -> Directional:
+    """Rules learned on one half and tested on the other (:func:`reference.halves`): ``scores_of(train,
+    test)`` returns ``{variant: {row: letter -> score}}``, once per half; one direction per (half,
+    variant, end)."""
+    out = Directional()
+    for half, train, test in halves(batch):
+        scores = scores_of(train, test)
+        for variant in variants:
+            for end in ends:
+                picks: list = [None] * len(batch)
+                for i, sc in scores[variant].items():
+                    picks[i] = extreme(sc, end)
+                out[" ".join(x for x in (variant, end, half) if x)] = picks
+    return out
+
+
+@attack("string_rate", ["any"], "candidate whose printed string (anywhere in the release) or value (same quantity) "
+        "is most (or least) often the answer where it is offered in the other half of the recordings (in every "
+        "direction)", family="prior", scope="batch")
+def _string_rate(batch: Batch):
+    string = lambda i, k: flat_text(batch.rows[i].candidates[k])
+    value = lambda i, k: (batch.obs[i].quantity, batch.rows[i].values[k].key())
+    return _halves(batch, ("string", "value"), lambda train, test: {
+        "string": _rates(batch, string, train, test), "value": _rates(batch, value, train, test)})
+
+
+def _field_scores(batch: Batch, train: list, test: list) -> dict:
+    """Per test row of a cell whose candidates print the same number of fields: the sum over the fields of
+    the log rate of the candidate's printed field among the training rows of the cell."""
+    toks = batch.memo("prior_tokens", lambda: [{k: tokens(p.candidates[k]) for k in LETTERS} for p in batch.rows])
+    width = [({len(t) for t in tk.values()} or {0}) for tk in toks]
+    cell = lambda i: (batch.rows[i].task, batch.rows[i].source, next(iter(width[i])) if len(width[i]) == 1 else None)
+    key = lambda i, k, f: (cell(i), f, toks[i][k][f]) if cell(i)[2] and f < cell(i)[2] else None
+    n_fields = max((c[2] or 0) for c in map(cell, test)) if test else 0
+    out: dict = {}
+    for f in range(n_fields):
+        for i, r in _rates(batch, lambda i, k, f=f: key(i, k, f), train,
+                           [i for i in test if (cell(i)[2] or 0) > f]).items():
+            acc = out.setdefault(i, dict.fromkeys(LETTERS, 0.0))
+            for k in LETTERS:
+                acc[k] += float(np.log(r[k]))
+    return out
+
+
+@attack("field_rate", ["scalar", "box", "pose", "trajectory"], "candidate whose printed fields (the j-th number of "
+        "each candidate) are most (or least) often the answer's where offered in the other half of the recordings "
+        "of the task/source cell, summed in log over the fields (in every direction)", family="prior",
+        scope="batch")
+def _field_rate(batch: Batch):
+    return _halves(batch, ("",), lambda train, test: {"": _field_scores(batch, train, test)})
+
+
+def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+    """Per test row of a cell of structured answers (boxes, poses: every candidate prints the same fields):
+    the sum over the fields of the log kernel density of the candidate's field value among the training
+    rows' answers (``density``), and of its ratio to the density among their candidates (``ratio``)."""
+    vecs = batch.memo("prior_vectors", lambda: [
+        np.array([p.values[k].vector() for k in LETTERS], float)
+        if all(isinstance(v, (V.Box, V.Pose)) for v in p.values.values())
+        and len({len(v.vector()) for v in p.values.values()}) == 1 else None for p in batch.rows])
+    cell = lambda i: (batch.rows[i].task, batch.rows[i].source, vecs[i].shape[1]) if vecs[i] is not None else None
+    density, ratio = {}, {}
+    pool: dict = {}
+    for i in train:
+        if cell(i) is not None:
+            pool.setdefault(cell(i), []).append(i)
+    for g, idx in pool.items():
+        rows = [i for i in test if cell(i) == g]
+        if not rows:
+            continue
+        C = np.stack([vecs[i] for i in idx])                                  # (m, 5, F)
+        A = np.stack([vecs[i][LETTERS.index(batch.rows[i].answer)] for i in idx])  # (m, F)
+        T = np.stack([vecs[i] for i in rows])                                 # (t, 5, F)
+        logd, logr = np.zeros(T.shape[:2]), np.zeros(T.shape[:2])
+        for f in range(T.shape[2]):
+            h = bandwidth(C[:, :, f].ravel())
+            fa = np.exp(-0.5 * ((T[:, :, f, None] - A[None, None, :, f]) / h) ** 2).mean(-1)
+            fc = np.exp(-0.5 * ((T[:, :, f, None] - C[:, :, f].ravel()[None, None, :]) / h) ** 2).mean(-1)
+            logd += np.log(fa + 1e-12)
+            logr += np.log(fa + 1e-12) - np.log(fc + 1e-12)
+        for r, i in enumerate(rows):
+            density[i] = {k: float(logd[r, q]) for q, k in enumerate(LETTERS)}
+            ratio[i] = {k: float(logr[r, q]) for q, k in enumerate(LETTERS)}
+    return density, ratio
+
+
+@attack("field_density", ["box", "pose"], "box or pose whose printed fields are most (or least) typical, field by "
+        "field, of the answers of the other half of the recordings of the task/source cell (log kernel density "
+        "summed over the fields, or its ratio to the density of their candidates; in every direction)",
+        family="prior", scope="batch")
+def _field_density(batch: Batch):
+    return _halves(batch, ("density", "ratio"),
+                   lambda train, test: dict(zip(("density", "ratio"), _field_densities(batch, train, test))))
+
+
+def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+    """Per test row: rank votes and relative-value closeness of its candidates from the answers of its five
+    nearest training rows (sorted candidate values; same cell and question type)."""
+    vals = batch.memo("prior_values", lambda: [value_scale(p) for p in batch.rows])
+    key = lambda i: (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i])) \
+        if vals[i] is not None and all(np.isfinite(list(vals[i].values()))) else None
+    by_rank, by_value = {}, {}
+    pool: dict = {}
+    for i in train:
+        if key(i) is not None:
+            pool.setdefault(key(i), []).append(i)
+    for g, idx in pool.items():
+        X = np.array([[vals[i][k] for k in LETTERS] for i in idx])
+        S = np.sort(X, axis=1)
+        centre, spread = S.mean(1), np.maximum(S.std(1), 1e-9)
+        ans = np.array([vals[i][batch.rows[i].answer] for i in idx])
+        ans_rank = (X < ans[:, None] - 1e-12).sum(1)
+        ans_rel = (ans - centre) / spread
+        for i in (j for j in test if key(j) == g):
+            x = np.array([vals[i][k] for k in LETTERS])
+            d = np.sqrt(((S - np.sort(x)) ** 2).sum(1))
+            near = np.lexsort((np.arange(len(d)), d))[:NEIGHBOURS]
+            votes = Counter(ans_rank[near].tolist())
+            rank = (x[None, :] < x[:, None] - 1e-12).sum(1)
+            by_rank[i] = {k: float(votes.get(int(rank[q]), 0)) for q, k in enumerate(LETTERS)}
+            rel = (x - x.mean()) / max(float(x.std()), 1e-9)
+            by_value[i] = {k: -abs(float(rel[q]) - float(np.median(ans_rel[near]))) for q, k in enumerate(LETTERS)}
+    return by_rank, by_value
+
+
+@attack("nearest_set", ["scalar", "trajectory"], "nearest neighbours over candidate sets: the candidate at the rank "
+        "(or nearest to the relative value) the answers took in the five most similar candidate sets of the other "
+        "half of the recordings (same cell and question type)", family="prior", scope="batch")
+def _nearest_set(batch: Batch):
+    return _halves(batch, ("rank", "value"),
+                   lambda train, test: dict(zip(("rank", "value"), _nearest_sets(batch, train, test))), ends=("max",))

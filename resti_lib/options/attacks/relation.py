@@ -1,0 +1,321 @@
+"""Family ``relation``: physical relations across the rows of one recording.
+
+Rows of one source sequence (the camera videos of a Waymo segment, a ScanNet scene, an Omni6DPose
+scene) measure one world, so a row's answer often follows from the answers of its siblings by physics,
+not by a repeated string (family ``cross_row``). Every attack here reads the sibling rows' answers (as
+a reader holding the released file does; never the row's own), and what each question prints
+(window, premise pose, subject noun) through :mod:`resti_lib.options.observables`; it predicts the
+row's value and picks the candidate nearest to a prediction (None where no sibling relates):
+
+- ``rel_rate_window``: a mean speed over a window times the window is the displacement (or path
+  length) over the same window, and the other way round;
+- ``rel_path_length``: the path length over a window is the total distance of a trajectory
+  description over the same window, and the other way round;
+- ``rel_box_edge``: a length, width or height is an edge of a sibling's oriented box of the same
+  subject noun (any sibling box when none shares it), and a box carries a sibling's dimension;
+- ``rel_pose_track``: a camera pose at a time is interpolated between the sibling poses of the same
+  camera and frame (answers and printed premises) around it, or extrapolated from the two nearest
+  (dead reckoning, constant velocity);
+- ``rel_turn_sum``: a heading change over a window is the signed turn sum of a trajectory description
+  over the same window, and the other way round;
+- ``rel_converse``: a spatial relation of B to A is the mirror of the relation of A to B asked in
+  another row of the same recording at the same time (the same words in another order).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter, defaultdict
+
+import numpy as np
+
+from ... import values as V
+from .batch import Batch
+from .common import top
+from .features import premise_parts, rot_angle
+from .registry import attack
+
+WINDOW_TOL_S = 0.1      # two windows are the same when both ends agree within this many seconds ...
+WINDOW_TOL_REL = 0.01   # ... or this fraction of the window, whichever is larger
+DISTANCES = ("displacement", "path_length")
+DIMENSIONS = ("length", "width", "height")
+MIRROR = {"left": "right", "right": "left", "closer": "farther", "farther": "closer", "front": "back",
+          "back": "front"}
+
+
+def _answer(batch: Batch, i: int):
+    p = batch.rows[i]
+    return p.values[p.answer]
+
+
+def _window(o) -> tuple[float, float] | None:
+    """The interval a question asks about (None for an instant or no times)."""
+    if o.time_start is None or o.time_end is None or not o.time_end > o.time_start:
+        return None
+    return float(o.time_start), float(o.time_end)
+
+
+def _same_window(a, b) -> bool:
+    tol = max(WINDOW_TOL_S, WINDOW_TOL_REL * (a[1] - a[0]))
+    return abs(a[0] - b[0]) <= tol and abs(a[1] - b[1]) <= tol
+
+
+def _siblings(batch: Batch, i: int, want) -> list[int]:
+    """The other rows of row ``i``'s recording for which ``want(j)`` holds."""
+    return [j for j in batch.sequences()[batch.obs[i].sequence] if j != i and want(j)]
+
+
+def _nearest_log(p, predictions: list) -> frozenset | None:
+    """The candidates (scalar SI values or trajectory distances) nearest, in log ratio, to any prediction."""
+    preds = [x for x in predictions if x is not None and np.isfinite(x) and x > 0]
+    if not preds:
+        return None
+    lp = np.log(preds)
+    scores = {}
+    for k, v in p.values.items():
+        x = v.total_distance if isinstance(v, V.Trajectory) else (abs(v.si) if isinstance(v, V.Scalar) else None)
+        scores[k] = -float(np.min(np.abs(np.log(x) - lp))) if x and x > 0 else -np.inf
+    return top(scores)
+
+
+def _scalar_row(p) -> bool:
+    return all(isinstance(v, V.Scalar) for v in p.values.values())
+
+
+def _trajectory_row(p) -> bool:
+    return all(isinstance(v, V.Trajectory) for v in p.values.values())
+
+
+# ------------------------------------------------------------------------------------ windows
+
+def _window_facts(batch: Batch, i: int, quantities: tuple, value_of) -> list:
+    """``value_of(j)`` of the sibling rows measuring one of ``quantities`` over the same window as row i."""
+    w = _window(batch.obs[i])
+    if w is None:
+        return []
+    sib = _siblings(batch, i, lambda j: batch.obs[j].quantity in quantities and _window(batch.obs[j]) is not None
+                    and _same_window(w, _window(batch.obs[j])))
+    return [value_of(j) for j in sib]
+
+
+def _si(batch: Batch, j: int):
+    a = _answer(batch, j)
+    return abs(a.si) if isinstance(a, V.Scalar) else None
+
+
+@attack("rel_rate_window", ["scalar"], "candidate nearest to a sibling's displacement or path length over the same "
+        "window divided by the window (a mean speed), or to a sibling's mean speed times the window (a distance); "
+        "reads the sibling rows' answers", family="relation", scope="batch")
+def _rate_window(batch: Batch):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        w = _window(o)
+        if w is None or not _scalar_row(p):
+            continue
+        span = w[1] - w[0]
+        if o.quantity == "speed":
+            preds = _window_facts(batch, i, DISTANCES, lambda j, span=span: (_si(batch, j) or np.nan) / span)
+        elif o.quantity in DISTANCES:
+            preds = _window_facts(batch, i, ("speed",), lambda j, span=span: (_si(batch, j) or np.nan) * span)
+        else:
+            continue
+        out[i] = _nearest_log(p, preds)
+    return out
+
+
+@attack("rel_path_length", ["scalar", "trajectory"], "path length nearest to the total distance of a sibling "
+        "trajectory description over the same window, or trajectory whose total distance is nearest to a sibling "
+        "path length; reads the sibling rows' answers", family="relation", scope="batch")
+def _path_length(batch: Batch):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        if o.quantity == "path_length" and _scalar_row(p):
+            preds = _window_facts(batch, i, ("trajectory",), lambda j: _answer(batch, j).total_distance
+                                  if isinstance(_answer(batch, j), V.Trajectory) else None)
+        elif o.quantity == "trajectory" and _trajectory_row(p):
+            preds = _window_facts(batch, i, ("path_length",), lambda j: _si(batch, j))
+        else:
+            continue
+        out[i] = _nearest_log(p, preds)
+    return out
+
+
+def turn_sum(v: V.Trajectory) -> float:
+    """The signed heading change of a trajectory description (left turns positive), in degrees."""
+    return float(sum(x for k, x in v.segments if k == "turn"))
+
+
+def _circular(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+@attack("rel_turn_sum", ["angle", "trajectory"], "heading change nearest to the signed turn sum of a sibling "
+        "trajectory description over the same window, or trajectory whose turn sum is nearest to a sibling "
+        "heading change; reads the sibling rows' answers", family="relation", scope="batch")
+def _turn_sum(batch: Batch):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        if o.quantity == "heading_change" and all(isinstance(v, V.Scalar) and v.is_angle for v in p.values.values()):
+            preds = _window_facts(batch, i, ("trajectory",), lambda j: turn_sum(_answer(batch, j))
+                                  if isinstance(_answer(batch, j), V.Trajectory) else None)
+            value = {k: float(v.value) for k, v in p.values.items()}
+        elif o.quantity == "trajectory" and _trajectory_row(p):
+            preds = _window_facts(batch, i, ("heading_change",), lambda j: float(_answer(batch, j).value)
+                                  if isinstance(_answer(batch, j), V.Scalar) else None)
+            value = {k: turn_sum(v) for k, v in p.values.items()}
+        else:
+            continue
+        preds = [x for x in preds if x is not None]
+        if preds:
+            out[i] = top({k: -min(_circular(x, y) for y in preds) for k, x in value.items()})
+    return out
+
+
+# ------------------------------------------------------------------------------------ boxes and dimensions
+
+def _same_noun(batch: Batch, i: int, sib: list) -> list:
+    """The siblings that name the same subject noun as row ``i`` (all of them when none does)."""
+    noun = batch.obs[i].subject_class
+    same = [j for j in sib if batch.obs[j].subject_class == noun]
+    return same or sib
+
+
+@attack("rel_box_edge", ["scalar", "box"], "length, width or height nearest to an edge of a sibling's oriented box "
+        "(same subject noun first), or box with an edge nearest to a sibling's length, width or height; reads "
+        "the sibling rows' answers", family="relation", scope="batch")
+def _box_edge(batch: Batch):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        if o.quantity in DIMENSIONS and _scalar_row(p):
+            sib = _same_noun(batch, i, _siblings(batch, i, lambda j: isinstance(_answer(batch, j), V.Box)))
+            out[i] = _nearest_log(p, [float(e) for j in sib for e in _answer(batch, j).lwh])
+        elif all(isinstance(v, V.Box) for v in p.values.values()):
+            sib = _same_noun(batch, i, _siblings(batch, i, lambda j: batch.obs[j].quantity in DIMENSIONS
+                                                 and isinstance(_answer(batch, j), V.Scalar)))
+            dims = np.log([abs(_answer(batch, j).si) for j in sib if abs(_answer(batch, j).si) > 0])
+            if len(dims):
+                out[i] = top({k: -float(np.min(np.abs(np.log(np.maximum(np.array(v.lwh, float), 1e-9))[:, None]
+                                                      - dims[None, :])))
+                              for k, v in p.values.items()})
+    return out
+
+
+# ------------------------------------------------------------------------------------ poses
+
+def _pose_frame(o):
+    """The frame a Pose question's poses live in: a printed premise is in the recording's world frame;
+    an identity premise makes the camera at the premise time the frame. Keyed with the camera (the
+    camera videos of one segment are different cameras)."""
+    if o.premise is None:
+        return None
+    return ("world" if o.premise_text else ("camera", o.premise_time), o.camera)
+
+
+def _pose_facts(batch: Batch, i: int) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """(time, translation, rotation) of every pose of row ``i``'s camera and frame known without row i's
+    answer: the premises printed in its own and its siblings' questions, and the siblings' answers."""
+    o = batch.obs[i]
+    frame = _pose_frame(o)
+    facts = []
+    if o.premise_time is not None:
+        t, R = premise_parts(o)
+        facts.append((float(o.premise_time), t, R))
+    for j in _siblings(batch, i, lambda j: _pose_frame(batch.obs[j]) == frame):
+        oj = batch.obs[j]
+        if oj.premise_time is not None:
+            t, R = premise_parts(oj)
+            facts.append((float(oj.premise_time), t, R))
+        a = _answer(batch, j)
+        if isinstance(a, V.Pose) and oj.time_end is not None:
+            facts.append((float(oj.time_end), np.array(a.t, float), np.array(a.R, float)))
+    return facts
+
+
+def predict_pose(facts: list, t: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pose at time ``t`` from known poses ``(time, translation, rotation)``: a pose at ``t`` itself;
+    else the translation interpolated between the nearest known poses before and after ``t`` (the
+    rotation of the nearer); else extrapolated from the two nearest on one side at their constant
+    velocity (dead reckoning); else the one known pose. None without facts."""
+    if not facts:
+        return None
+    by_time: dict = {}
+    for ft, tr, R in facts:
+        by_time.setdefault(round(ft, 6), (ft, tr, R))
+    known = sorted(by_time.values(), key=lambda f: f[0])
+    times = np.array([f[0] for f in known])
+    at = np.flatnonzero(np.abs(times - t) <= 1e-6)
+    if len(at):
+        return known[at[0]][1], known[at[0]][2]
+    before = [f for f in known if f[0] < t]
+    after = [f for f in known if f[0] > t]
+    if before and after:
+        a, b = before[-1], after[0]
+        u = (t - a[0]) / (b[0] - a[0])
+        return a[1] + u * (b[1] - a[1]), (a[2] if u <= 0.5 else b[2])
+    side = before[-2:] if before else after[:2]
+    if len(side) == 2:
+        a, b = side
+        v = (b[1] - a[1]) / (b[0] - a[0])
+        near = b if before else a
+        return near[1] + v * (t - near[0]), near[2]
+    return side[0][1], side[0][2]
+
+
+@attack("rel_pose_track", ["pose"], "pose nearest (translation, then rotation) to the camera pose interpolated "
+        "between the sibling poses of the same camera and frame (answers and printed premises) or extrapolated "
+        "from the two nearest (dead reckoning); reads the sibling rows' answers", family="relation",
+        scope="batch")
+def _pose_track(batch: Batch):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        if o.premise is None or o.time_end is None or not all(isinstance(v, V.Pose) for v in p.values.values()):
+            continue
+        facts = _pose_facts(batch, i)
+        if len(facts) < 2:  # the premise alone is the question family's (premise_distance)
+            continue
+        pred = predict_pose(facts, float(o.time_end))
+        if pred is None:
+            continue
+        tp, Rp = pred
+        dt = {k: float(np.linalg.norm(np.array(v.t, float) - tp)) for k, v in p.values.items()}
+        dr = {k: rot_angle(np.array(v.R, float), Rp) for k, v in p.values.items()}
+        st = float(np.median(list(dt.values()))) or 1.0
+        sr = float(np.median(list(dr.values()))) or 1.0
+        out[i] = top({k: -(dt[k] / st + 0.25 * dr[k] / sr) for k in p.values})
+    return out
+
+
+# ------------------------------------------------------------------------------------ converse relations
+
+_WORDS = re.compile(r"[a-z0-9]+")
+
+
+def _word_bag(question) -> tuple:
+    return tuple(sorted(Counter(_WORDS.findall(str(question or "").lower())).items()))
+
+
+def mirror_label(text: str) -> str | None:
+    """The converse of a relation label (``Left`` <-> ``Right``, ``Closer`` <-> ``Farther``, ``Front`` <->
+    ``Back``); None for a label without one among these."""
+    t = " ".join(str(text).lower().split())
+    return MIRROR.get(t)
+
+
+@attack("rel_converse", ["label"], "relation label mirroring the answer of the converse question (the same words "
+        "in another order, same recording and time: B relative to A against A relative to B); reads the sibling "
+        "rows' answers", family="relation", scope="batch")
+def _converse(batch: Batch):
+    out: list = [None] * len(batch)
+    bags = [_word_bag(r.get("Question")) for r in batch.records]
+    key = defaultdict(list)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        if all(isinstance(v, V.Label) for v in p.values.values()):
+            key[(o.sequence, o.time_start, o.time_end, bags[i])].append(i)
+    for idx in key.values():
+        for i in idx:
+            q = str(batch.records[i].get("Question") or "")
+            converse = [j for j in idx if j != i and str(batch.records[j].get("Question") or "") != q]
+            want = {mirror_label(_answer(batch, j).text) for j in converse} - {None}
+            hit = frozenset(k for k, v in batch.rows[i].values.items() if " ".join(v.text.lower().split()) in want)
+            out[i] = hit or None
+    return out
