@@ -40,7 +40,7 @@ def clean():
 
 @pytest.mark.slow  # over 3 s: make test runs it, make test-fast leaves it out
 def test_clean_control_has_no_false_alarm(clean):
-    assert set(clean["family"]) == set(FAMILIES)  # every family ran
+    assert set(clean["family"]) == set(FAMILIES) - {"keyed"}  # every blind family ran (keyed ones are named explicitly)
     assert not clean["significant"].any(), clean[clean["significant"]]
     assert 0.15 < clean["accuracy"].mean() < 0.25
     h = headline(clean)

@@ -358,3 +358,42 @@ def test_near_equal_answers_of_one_recording_get_translated_candidate_sets():
     for r in out:
         p = parse_row(r, r["ReSTI ID"], IFACE)
         assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["format_consistency"](p) is None
+
+
+def test_adversarial_filter_redraws_the_rows_a_discriminator_identifies():
+    """A planted discriminator that names the answer of every row where it is the largest candidate (an
+    oracle: a fifth of exchangeable rows, each a sure hit): the filter finds its cell significant,
+    draws new distractors for exactly the rows it identified (letters kept, every requirement met), and
+    records its rounds; rows it did not identify keep their candidates."""
+    from resti_lib.options.attacks import ATTACKS, attack
+    from resti_lib.options.spec import Interface, deep_merge
+
+    rows, _ = _displacement_rows(n=120, seed=4)
+
+    def tell(p):
+        a = V.parse(p.candidates[p.answer]).value
+        return frozenset(p.answer) if max(V.parse(s).value for s in p.candidates.values()) <= a else None
+
+    attack("test_half_tell", ["scalar"], "planted: the answer where it is the largest candidate")(tell)
+    try:
+        off = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 0}}), IFACE.tasks)
+        on = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 2, "attacks": ["test_half_tell"]}}),
+                       IFACE.tasks)
+        before, _, _ = build_options(iface=off, records=rows, seed=0)
+        after, ev, _ = build_options(iface=on, records=rows, seed=0)
+    finally:
+        ATTACKS.pop("test_half_tell")
+    told = {r["ReSTI ID"] for r in before
+            if max(V.parse(s).value for s in r["Candidates"].values()) <= V.parse(r["Answer Detail"]).value}
+    assert 10 <= len(told) <= 45  # about a fifth of 120 rows (counted from the strings)
+    log = ev.attrs["adversarial"]
+    assert log[0]["identified"] == len(told) and log[0]["significant_cells"][0]["attack"] == "test_half_tell"
+    redrawn = set(ev.loc[ev["adversarial_redrawn"].notna(), "rid"]) if "adversarial_redrawn" in ev else set()
+    assert redrawn >= told
+    by_id = {r["ReSTI ID"]: r for r in before}
+    for r in after:
+        assert r["Answer"] == by_id[r["ReSTI ID"]]["Answer"]  # the letter schedule stays
+        if r["ReSTI ID"] not in redrawn:
+            assert r["Candidates"] == by_id[r["ReSTI ID"]]["Candidates"]
+        p = parse_row(r, r["ReSTI ID"], on)
+        assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["plausible_given_question"](p) is None

@@ -81,6 +81,8 @@ class Stage:
         self.cur_draw = None
         self.last_draw = None
         self.free_draw = False  # the last widening tier (see _build_row)
+        self.strings: dict[str, list[str]] = {}  # the five candidate strings of each row built
+        self.reveals: dict = {}
         self.s_factors: dict = {}
         self._plan()
 
@@ -200,9 +202,8 @@ class Stage:
     def build(self, progress: bool = False, on_failure: str = "raise") -> tuple[list[dict], pd.DataFrame, dict]:
         """Build every row; returns (rows, evidence, failed). ``on_failure``: ``raise`` stops at a
         row whose options cannot meet the constraints; ``skip`` leaves its candidates empty and
-        names it in ``failed`` (rid -> problem), for the caller to exclude."""
-        built: dict[str, list[str]] = {}
-        out, ev = [], []
+        names it in ``failed`` (rid -> problem), for the caller to exclude. The rows then pass the
+        adversarial filter (:meth:`adversarial_filter`); its rounds are in ``evidence.attrs``."""
         failed: dict[str, str] = {}
         self.s_factors = self.calibrate()
         it = self.plans
@@ -210,28 +211,27 @@ class Stage:
             from tqdm.auto import tqdm
 
             it = tqdm(self.plans, desc="options", unit="row", leave=False)
-        reveals = self._reveals()
+        self.reveals = self._reveals()
+        built: dict[str, list[str]] = {}
         for p, r in zip(it, self.records):
-            coupled = None
-            if p.couple_with is not None and p.couple_with in built:
-                coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p,
-                                                              built[p.couple_with])
-            if p.share_with is not None and p.share_with in built:
-                strings = list(built[p.share_with])
-                p.evidence.update({"shared_with": p.share_with})
-            elif coupled is not None and self._coupled_ok(p, coupled):
-                strings = coupled
-                p.evidence.update({"coupled_with": p.couple_with})
-            else:
+            strings = self._dependent(p, built)
+            if strings is None:
                 try:
-                    strings = self._build_row(p, r, reveals)
+                    strings = self._build_row(p, r, self.reveals)
                 except OptionError as e:
                     if on_failure != "skip":
                         raise
                     failed[p.rid] = str(e)
-                    out.append(dict(r))
                     continue
                 built[p.rid] = strings
+            self.strings[p.rid] = strings
+        log = self.adversarial_filter(built, failed)
+        out, ev = [], []
+        for p, r in zip(self.plans, self.records):
+            if p.rid in failed:
+                out.append(dict(r))
+                continue
+            strings = self.strings[p.rid]
             cands, letter = self._letter(p, strings)
             new = dict(r)
             new["Candidates"] = cands
@@ -242,7 +242,117 @@ class Stage:
                        "fixed": ",".join(p.fixed), "answer_is_fixed": p.answer_is_fixed,
                        "s_factor": self.groups[p.group].info.get("s_factor", 1.0) if p.group in self.groups else None,
                        **p.evidence})
-        return out, pd.DataFrame(ev), failed
+        frame = pd.DataFrame(ev)
+        frame.attrs["adversarial"] = log
+        return out, frame, failed
+
+    def _dependent(self, p: RowPlan, built: dict) -> list[str] | None:
+        """A row's candidates when they follow another row's: the same set (shared) or its translate
+        (coupled, when the translate meets the row's checks); None when the row draws its own."""
+        if p.share_with is not None and p.share_with in built:
+            p.evidence.update({"shared_with": p.share_with})
+            return list(built[p.share_with])
+        if p.couple_with is not None and p.couple_with in built:
+            coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p, built[p.couple_with])
+            if coupled is not None and self._coupled_ok(p, coupled):
+                p.evidence.update({"coupled_with": p.couple_with})
+                return coupled
+        return None
+
+    # -------------------------------------------------------------------- adversarial filtering
+    def adversarial_filter(self, built: dict, failed: dict) -> list[dict]:
+        """Check the drawn options with the strongest blind discriminators (``params/options.yaml``
+        ``adversarial.attacks``: learned out of fold by recording, and the priors learned on the other
+        half of the recordings): in every task/source cell where one of them is significant (Holm over
+        the cells at ``alpha``), the rows it identifies (its one pick is the answer) get their
+        distractors drawn again (a new stream of their RNG; the letters stay); then the check runs
+        again, at most ``rounds`` times and ``max_seconds`` seconds. Returns one record per round."""
+        import time
+
+        from scipy.stats import binom
+
+        from .attacks import parse_rows, run_picks
+
+        af = self.params.get("adversarial") or {}
+        rounds, alpha = int(af.get("rounds", 0)), float(af.get("alpha", 0.05))
+        names = list(af.get("attacks") or [])
+        t_end = time.perf_counter() + float(af.get("max_seconds", 60.0))
+        log: list[dict] = []
+        for rnd in range(rounds):
+            rows = []
+            for p, r in zip(self.plans, self.records):
+                if p.rid in failed or p.spec.kind == "label":
+                    continue
+                cands, letter = self._letter(p, self.strings[p.rid])
+                rows.append({**r, "Candidates": cands, "Answer": letter})
+            if not rows:
+                break
+            picks = run_picks(parse_rows(rows), names, records=rows, iface=self.iface)
+            picks = picks[picks["pick"].notna()]
+            if picks.empty:
+                break
+            picks = picks.assign(direction=picks["direction"].fillna("").astype(str))
+            cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
+                n=("hit", "size"), hits=("hit", "sum"))
+            cells["p"] = binom.sf(np.ceil(cells["hits"].to_numpy()) - 1, cells["n"].to_numpy(), 0.2)
+            order = np.argsort(cells["p"].to_numpy(), kind="stable")
+            m = len(cells)
+            significant = set()
+            for k, idx in enumerate(order):  # Holm's step-down over the cells
+                if cells["p"].iloc[idx] > alpha / (m - k):
+                    break
+                significant.add(cells.index[idx])
+            record = {"round": rnd + 1, "cells_checked": int(m), "significant_cells": [
+                {"attack": a, "direction": d, "task": tk, "source": s, "hits": float(cells.loc[(a, d, tk, s), "hits"]),
+                 "n": int(cells.loc[(a, d, tk, s), "n"])} for a, d, tk, s in sorted(significant)]}
+            if not significant or rnd == rounds - 1:  # at chance, or the last check: nothing is redrawn after it
+                record["stopped"] = "at chance" if not significant else "rounds"
+                log.append(record)
+                break
+            sel = picks[[(a, d, tk, s) in significant
+                         for a, d, tk, s in zip(picks["attack"], picks["direction"], picks["task"], picks["source"])]]
+            identified = sorted(set(sel.loc[(sel["tied"] == 1) & (sel["hit"] >= 1.0), "rid"].astype(str)))
+            redrawn = self._redraw(identified, built, failed, rnd + 1)
+            record.update({"identified": len(identified), "redrawn": redrawn})
+            log.append(record)
+            if not redrawn:
+                record["stopped"] = "nothing to redraw"
+                break
+            if time.perf_counter() > t_end:  # recorded: a slower machine may stop earlier (no timings written)
+                record["stopped"] = "max_seconds"
+                break
+        return log
+
+    def _redraw(self, rids: list[str], built: dict, failed: dict, rnd: int) -> int:
+        """Draw the named rows' distractors again (their base row when they follow one), then the rows
+        that follow those. Returns how many rows were drawn again."""
+        bases = []
+        for rid in rids:
+            p = self.by_id.get(rid)
+            if p is None:
+                continue
+            base = p.share_with if p.share_with in built else (p.couple_with if p.couple_with in built else p.rid)
+            if base in built and base not in bases and not self.by_id[base].answer_is_fixed:
+                bases.append(base)
+        n = 0
+        for rid in bases:
+            p = self.by_id[rid]
+            try:
+                strings = self._build_row(p, self.records[self.index[rid]], self.reveals, stream=f"adversarial-{rnd}")
+            except OptionError:
+                continue  # keeps the set it has (it meets every requirement)
+            built[rid] = strings
+            self.strings[rid] = strings
+            p.evidence["adversarial_redrawn"] = rnd
+            n += 1
+        for q in self.plans:  # rows that follow a redrawn row follow it again
+            if q.rid in failed or q.rid in bases:
+                continue
+            if q.share_with in bases or q.couple_with in bases:
+                again = self._dependent(q, built)
+                if again is not None:
+                    self.strings[q.rid] = again
+        return n
 
     def _coupled_ok(self, p: RowPlan, strings: list[str]) -> bool:
         """A translated set meets the row's own requirements (the checks ``resti verify`` runs)."""
@@ -263,7 +373,8 @@ class Stage:
             cands[L] = ans if L == p.letter else others.pop(0)
         return cands, p.letter
 
-    def _build_row(self, p: RowPlan, record: dict | None, reveals: dict, *, calibrating: bool = False) -> list[str]:
+    def _build_row(self, p: RowPlan, record: dict | None, reveals: dict, *, calibrating: bool = False,
+                   stream: str = "options") -> list[str]:
         kind = p.spec.kind
         if kind == "label":
             return builder_for("label").build_label(self, p, record)
@@ -273,7 +384,7 @@ class Stage:
         tries = int(self.model["max_tries"]) // (4 if calibrating else 1)
         if kind in ("scalar", "angle"):
             tries = max(2, tries // 16)  # each try is a batch of 32 sets
-        rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else "options")
+        rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else stream)
         last = "no candidates drawn"
         # widening steps: a wider spread, then (relaxed) same-video premises no longer imposed
         # a last tier draws a scalar's distractors from its group's population without conditioning

@@ -306,6 +306,44 @@ def _drop_pose_reveals(c: _Selection) -> None:
             drop[rid[i]] = "same_video_reveal"
 
 
+def _drop_keyed_reveals(c: _Selection) -> None:
+    """Rows whose answer a sibling row's answer gives through physics (a rate over a window, a path
+    length, a box edge, a turn sum, a pose on the camera's track, a converse relation): no option design
+    hides that from a reader who knows the sibling's key, so one row of each such pair is left out. The
+    keyed attacks of :mod:`resti_lib.options.attacks.relation` name the pairs: per attack and recording
+    the first row they reveal is kept (its partner's answer revealed it) and the others dropped, then
+    the attacks run again on what is kept, until they reveal nothing."""
+    from .attacks import parse_rows, run_picks, select
+
+    names = [n for n in select("keyed") if n.startswith("keyed_")]
+    for _ in range(6):
+        kept = [i for i in range(len(c.records)) if c.rid[i] not in c.drop and c.specs[i] is not None]
+        if not kept:
+            return
+        recs = [c.records[i] for i in kept]
+        picks = run_picks(parse_rows(recs), names, records=recs, iface=c.iface)
+        if picks.empty:
+            return
+        hits = picks[(picks["tied"] == 1) & (picks["hit"] >= 1.0)]
+        if hits.empty:
+            return
+        index = {str(c.rid[i]): i for i in kept}
+        first: set = set()
+        dropped = 0
+        for name, rid_ in zip(hits["attack"], hits["rid"].astype(str)):
+            i = index.get(rid_)
+            if i is None or c.rid[i] in c.drop:
+                continue
+            key = (name, c.specs[i].obs.sequence)
+            if key not in first:
+                first.add(key)
+                continue
+            c.drop[c.rid[i]] = "keyed_reveal"
+            dropped += 1
+        if not dropped:
+            return
+
+
 def _drop_floor_forced(c: _Selection) -> None:
     """Angles inside a window narrower than the separation floor that holds more than a fifth of their
     cell."""
@@ -346,7 +384,7 @@ def _cap_zero_answers(c: _Selection) -> None:
 
 #: The steps of :func:`evaluation_subset`, in order (each sees the rows the earlier ones kept).
 SUBSET_STEPS = (_drop_metadata, _drop_converse_pairs, _balance_labels, _drop_repeated_answers, _drop_pose_reveals,
-                _drop_floor_forced, _cap_zero_answers)
+                _drop_keyed_reveals, _drop_floor_forced, _cap_zero_answers)
 
 
 def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame | None = None, *, seed: int = 0
@@ -368,8 +406,10 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
                  "video and time) one is kept; categorical answers are balanced to the rarest label per task and "
                  "source; of rows of one recording asking the same thing with the same answer, one is kept; a "
                  "Pose answer equal to its own premise, or printed as the premise of another question of its "
-                 "video, is left out; angles inside a window narrower than the separation floor that holds more "
-                 "than a fifth of their cell (forced by the floor) are left out; exact-zero answers are kept at "
+                 "video, is left out; of rows whose answer a sibling's answer gives through physics (a keyed "
+                 "relation attack reveals it), one per recording and relation is kept; angles inside a window "
+                 "narrower than the separation floor that holds more than a fifth of their cell (forced by the "
+                 "floor) are left out; exact-zero answers are kept at "
                  "most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),

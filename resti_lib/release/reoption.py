@@ -188,6 +188,7 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
         meta = release_meta(rows, [*rel.excluded, *dropped], st.artifacts(ARTIFACTS), source_meta=rel.meta,
                             source_digests=src_digests, seed=seed, options=iface.options)
         meta["answer_interface"] = iface.to_dict()
+        meta["reoption"]["adversarial_filter"] = ev.attrs.get("adversarial", [])
         meta["structural_leaks"] = json.loads(leaks.to_json(orient="records"))
         st.seal(meta, ARTIFACTS)
         validation = st.verify()

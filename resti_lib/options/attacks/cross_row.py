@@ -57,7 +57,7 @@ def _xrow_options(batch: Batch):
 
 @attack("xrow_answer", ["scalar", "box", "pose", "trajectory"], "candidate equal to the answer of another row of "
         "the same video or source sequence (reads the other rows' keys; in every direction)",
-        family="cross_row", scope="batch")
+        family="keyed", scope="batch")
 def _xrow_answer(batch: Batch):
     ans = [p.values[p.answer].key() for p in batch.rows]
 

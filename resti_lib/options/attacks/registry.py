@@ -22,8 +22,13 @@ FAMILIES = {
     "metadata": "metadata (video name and other non-video fields)",
     "learned_option": "learned attacker on candidate features",
     "learned_question": "learned attacker on candidate, population and question features",
+    "keyed": "readers of other rows' answer keys (a harness that shows a sibling question's key): what a repeated "
+             "question or physics reveals from a sibling's answer; no option design can hide that, so it is not "
+             "part of the blind suite: the evaluation subset leaves such rows out",
 }
 LEARNED_FAMILIES = ("learned_option", "learned_question")
+#: Families that read a sibling row's answer key, not only what a blind reader sees.
+KEYED_FAMILIES = ("keyed",)
 KINDS = ("scalar", "angle", "box", "pose", "trajectory", "label", "any")
 SCOPES = ("row", "question", "batch")
 
@@ -78,11 +83,12 @@ def family_of(name: str) -> str:
 
 
 def select(families=None, attacks=None, *, fast: bool = False) -> list[str]:
-    """Attack names of the chosen ``families`` (None or ``"all"``: every family) and/or ``attacks``
+    """Attack names of the chosen ``families`` (None or ``"all"``: every blind family, the keyed ones
+    named explicitly) and/or ``attacks``
     (names; None: every attack of the families); ``fast`` leaves the learned families out. Unknown
     names raise ``ValueError``."""
-    if families in (None, "all"):
-        fams = list(FAMILIES)
+    if families in (None, "all"):  # the blind suite: every family that reads no answer key
+        fams = [f for f in FAMILIES if f not in KEYED_FAMILIES]
     else:
         fams = [families] if isinstance(families, str) else list(families)
         bad = [f for f in fams if f not in FAMILIES]

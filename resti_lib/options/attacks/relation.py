@@ -48,6 +48,14 @@ def _answer(batch: Batch, i: int):
     return p.values[p.answer]
 
 
+def _facts(batch: Batch, j: int, keyed: bool) -> list:
+    """What a reader knows of sibling ``j``'s value: its answer (a keyed reader) or its five candidates
+    (a blind reader, who sees the sibling's question and options). Options coupled across the relation
+    make every candidate match one of the sibling's, so the blind version singles out nothing."""
+    p = batch.rows[j]
+    return [p.values[p.answer]] if keyed else list(p.values.values())
+
+
 def _window(o) -> tuple[float, float] | None:
     """The interval a question asks about (None for an instant or no times)."""
     if o.time_start is None or o.time_end is None or not o.time_end > o.time_start:
@@ -98,15 +106,15 @@ def _window_facts(batch: Batch, i: int, quantities: tuple, value_of) -> list:
     return [value_of(j) for j in sib]
 
 
-def _si(batch: Batch, j: int):
-    a = _answer(batch, j)
-    return abs(a.si) if isinstance(a, V.Scalar) else None
+def _si_all(batch: Batch, j: int, keyed: bool) -> list:
+    return [abs(a.si) for a in _facts(batch, j, keyed) if isinstance(a, V.Scalar)]
 
 
-@attack("rel_rate_window", ["scalar"], "candidate nearest to a sibling's displacement or path length over the same "
-        "window divided by the window (a mean speed), or to a sibling's mean speed times the window (a distance); "
-        "reads the sibling rows' answers", family="relation", scope="batch")
-def _rate_window(batch: Batch):
+def _flat(lists) -> list:
+    return [x for xs in lists for x in xs]
+
+
+def _rate_window(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
         w = _window(o)
@@ -114,26 +122,23 @@ def _rate_window(batch: Batch):
             continue
         span = w[1] - w[0]
         if o.quantity == "speed":
-            preds = _window_facts(batch, i, DISTANCES, lambda j, span=span: (_si(batch, j) or np.nan) / span)
+            preds = _flat(_window_facts(batch, i, DISTANCES, lambda j, s=span: [x / s for x in _si_all(batch, j, keyed)]))
         elif o.quantity in DISTANCES:
-            preds = _window_facts(batch, i, ("speed",), lambda j, span=span: (_si(batch, j) or np.nan) * span)
+            preds = _flat(_window_facts(batch, i, ("speed",), lambda j, s=span: [x * s for x in _si_all(batch, j, keyed)]))
         else:
             continue
         out[i] = _nearest_log(p, preds)
     return out
 
 
-@attack("rel_path_length", ["scalar", "trajectory"], "path length nearest to the total distance of a sibling "
-        "trajectory description over the same window, or trajectory whose total distance is nearest to a sibling "
-        "path length; reads the sibling rows' answers", family="relation", scope="batch")
-def _path_length(batch: Batch):
+def _path_length(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
         if o.quantity == "path_length" and _scalar_row(p):
-            preds = _window_facts(batch, i, ("trajectory",), lambda j: _answer(batch, j).total_distance
-                                  if isinstance(_answer(batch, j), V.Trajectory) else None)
+            preds = _flat(_window_facts(batch, i, ("trajectory",), lambda j: [
+                a.total_distance for a in _facts(batch, j, keyed) if isinstance(a, V.Trajectory)]))
         elif o.quantity == "trajectory" and _trajectory_row(p):
-            preds = _window_facts(batch, i, ("path_length",), lambda j: _si(batch, j))
+            preds = _flat(_window_facts(batch, i, ("path_length",), lambda j: _si_all(batch, j, keyed)))
         else:
             continue
         out[i] = _nearest_log(p, preds)
@@ -149,19 +154,16 @@ def _circular(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-@attack("rel_turn_sum", ["angle", "trajectory"], "heading change nearest to the signed turn sum of a sibling "
-        "trajectory description over the same window, or trajectory whose turn sum is nearest to a sibling "
-        "heading change; reads the sibling rows' answers", family="relation", scope="batch")
-def _turn_sum(batch: Batch):
+def _turn_sum(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
         if o.quantity == "heading_change" and all(isinstance(v, V.Scalar) and v.is_angle for v in p.values.values()):
-            preds = _window_facts(batch, i, ("trajectory",), lambda j: turn_sum(_answer(batch, j))
-                                  if isinstance(_answer(batch, j), V.Trajectory) else None)
+            preds = _flat(_window_facts(batch, i, ("trajectory",), lambda j: [
+                turn_sum(a) for a in _facts(batch, j, keyed) if isinstance(a, V.Trajectory)]))
             value = {k: float(v.value) for k, v in p.values.items()}
         elif o.quantity == "trajectory" and _trajectory_row(p):
-            preds = _window_facts(batch, i, ("heading_change",), lambda j: float(_answer(batch, j).value)
-                                  if isinstance(_answer(batch, j), V.Scalar) else None)
+            preds = _flat(_window_facts(batch, i, ("heading_change",), lambda j: [
+                float(a.value) for a in _facts(batch, j, keyed) if isinstance(a, V.Scalar)]))
             value = {k: turn_sum(v) for k, v in p.values.items()}
         else:
             continue
@@ -180,19 +182,17 @@ def _same_noun(batch: Batch, i: int, sib: list) -> list:
     return same or sib
 
 
-@attack("rel_box_edge", ["scalar", "box"], "length, width or height nearest to an edge of a sibling's oriented box "
-        "(same subject noun first), or box with an edge nearest to a sibling's length, width or height; reads "
-        "the sibling rows' answers", family="relation", scope="batch")
-def _box_edge(batch: Batch):
+def _box_edge(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
         if o.quantity in DIMENSIONS and _scalar_row(p):
             sib = _same_noun(batch, i, _siblings(batch, i, lambda j: isinstance(_answer(batch, j), V.Box)))
-            out[i] = _nearest_log(p, [float(e) for j in sib for e in _answer(batch, j).lwh])
+            out[i] = _nearest_log(p, [float(e) for j in sib for a in _facts(batch, j, keyed) if isinstance(a, V.Box)
+                                      for e in a.lwh])
         elif all(isinstance(v, V.Box) for v in p.values.values()):
             sib = _same_noun(batch, i, _siblings(batch, i, lambda j: batch.obs[j].quantity in DIMENSIONS
                                                  and isinstance(_answer(batch, j), V.Scalar)))
-            dims = np.log([abs(_answer(batch, j).si) for j in sib if abs(_answer(batch, j).si) > 0])
+            dims = np.log([x for j in sib for x in _si_all(batch, j, keyed) if x > 0])
             if len(dims):
                 out[i] = top({k: -float(np.min(np.abs(np.log(np.maximum(np.array(v.lwh, float), 1e-9))[:, None]
                                                       - dims[None, :])))
@@ -211,9 +211,10 @@ def _pose_frame(o):
     return ("world" if o.premise_text else ("camera", o.premise_time), o.camera)
 
 
-def _pose_facts(batch: Batch, i: int) -> list[tuple[float, np.ndarray, np.ndarray]]:
+def _pose_facts(batch: Batch, i: int, keyed: bool) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """(time, translation, rotation) of every pose of row ``i``'s camera and frame known without row i's
-    answer: the premises printed in its own and its siblings' questions, and the siblings' answers."""
+    answer: the premises printed in its own and its siblings' questions, and (a keyed reader) the
+    siblings' answers."""
     o = batch.obs[i]
     frame = _pose_frame(o)
     facts = []
@@ -225,7 +226,7 @@ def _pose_facts(batch: Batch, i: int) -> list[tuple[float, np.ndarray, np.ndarra
         if oj.premise_time is not None:
             t, R = premise_parts(oj)
             facts.append((float(oj.premise_time), t, R))
-        a = _answer(batch, j)
+        a = _answer(batch, j) if keyed else None
         if isinstance(a, V.Pose) and oj.time_end is not None:
             facts.append((float(oj.time_end), np.array(a.t, float), np.array(a.R, float)))
     return facts
@@ -261,16 +262,12 @@ def predict_pose(facts: list, t: float) -> tuple[np.ndarray, np.ndarray] | None:
     return side[0][1], side[0][2]
 
 
-@attack("rel_pose_track", ["pose"], "pose nearest (translation, then rotation) to the camera pose interpolated "
-        "between the sibling poses of the same camera and frame (answers and printed premises) or extrapolated "
-        "from the two nearest (dead reckoning); reads the sibling rows' answers", family="relation",
-        scope="batch")
-def _pose_track(batch: Batch):
+def _pose_track(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
         if o.premise is None or o.time_end is None or not all(isinstance(v, V.Pose) for v in p.values.values()):
             continue
-        facts = _pose_facts(batch, i)
+        facts = _pose_facts(batch, i, keyed)
         if len(facts) < 2:  # the premise alone is the question family's (premise_distance)
             continue
         pred = predict_pose(facts, float(o.time_end))
@@ -301,9 +298,9 @@ def mirror_label(text: str) -> str | None:
     return MIRROR.get(t)
 
 
-@attack("rel_converse", ["label"], "relation label mirroring the answer of the converse question (the same words "
+@attack("keyed_converse", ["label"], "relation label mirroring the answer of the converse question (the same words "
         "in another order, same recording and time: B relative to A against A relative to B); reads the sibling "
-        "rows' answers", family="relation", scope="batch")
+        "rows' answers (a blind reader sees the same five labels in both)", family="keyed", scope="batch")
 def _converse(batch: Batch):
     out: list = [None] * len(batch)
     bags = [_word_bag(r.get("Question")) for r in batch.records]
@@ -319,3 +316,36 @@ def _converse(batch: Batch):
             hit = frozenset(k for k, v in batch.rows[i].values.items() if " ".join(v.text.lower().split()) in want)
             out[i] = hit or None
     return out
+
+
+# ------------------------------------------------------------------------------------ registration
+
+_RELATIONS = (
+    ("rate_window", ["scalar"], _rate_window,
+     "candidate nearest to a sibling's displacement or path length over the same window divided by the window "
+     "(a mean speed), or to a sibling's mean speed times the window (a distance)"),
+    ("path_length", ["scalar", "trajectory"], _path_length,
+     "path length nearest to the total distance of a sibling trajectory description over the same window, or "
+     "trajectory whose total distance is nearest to a sibling path length"),
+    ("turn_sum", ["angle", "trajectory"], _turn_sum,
+     "heading change nearest to the signed turn sum of a sibling trajectory description over the same window, or "
+     "trajectory whose turn sum is nearest to a sibling heading change"),
+    ("box_edge", ["scalar", "box"], _box_edge,
+     "length, width or height nearest to an edge of a sibling's oriented box (same subject noun first), or box "
+     "with an edge nearest to a sibling's length, width or height"),
+    ("pose_track", ["pose"], _pose_track,
+     "pose nearest (translation, then rotation) to the camera pose interpolated between the known poses of the "
+     "same camera and frame or extrapolated from the two nearest (dead reckoning)"),
+)
+
+
+def _register(name: str, kinds: list, fn, what: str) -> None:
+    attack(f"rel_{name}", kinds, what + "; reads the sibling rows' questions and candidates (a sibling's "
+           "every candidate, or for poses the printed premises)", family="relation", scope="batch")(
+        lambda batch, fn=fn: fn(batch, False))
+    attack(f"keyed_{name}", kinds, what + "; reads the sibling rows' answers", family="keyed", scope="batch")(
+        lambda batch, fn=fn: fn(batch, True))
+
+
+for _name, _kinds, _fn, _what in _RELATIONS:
+    _register(_name, _kinds, _fn, _what)
