@@ -266,9 +266,10 @@ class Stage:
         half of the recordings): in every task/source cell where one of them is significant (Holm over
         the cells at ``alpha``), the rows it identifies (its one pick is the answer) get their
         distractors drawn again (a new stream of their RNG; the letters stay); then the check runs
-        again, at most ``rounds`` times and ``max_seconds`` seconds. Returns one record per round."""
-        import time
-
+        again, at most ``rounds`` times (the work, and so the time, is bounded by the rounds, not by a
+        clock: the same input gives the same bytes on any machine). A round that would redraw more than
+        ``max_redrawn_share`` of the rows stops the filter (the draw itself then leaks, which redrawing
+        cannot mend; the record says so). Returns one record per round."""
         from scipy.stats import binom
 
         from .attacks import parse_rows, run_picks
@@ -276,7 +277,7 @@ class Stage:
         af = self.params.get("adversarial") or {}
         rounds, alpha = int(af.get("rounds", 0)), float(af.get("alpha", 0.05))
         names = list(af.get("attacks") or [])
-        t_end = time.perf_counter() + float(af.get("max_seconds", 60.0))
+        share = float(af.get("max_redrawn_share", 0.5))
         log: list[dict] = []
         for rnd in range(rounds):
             rows = []
@@ -312,14 +313,15 @@ class Stage:
             sel = picks[[(a, d, tk, s) in significant
                          for a, d, tk, s in zip(picks["attack"], picks["direction"], picks["task"], picks["source"])]]
             identified = sorted(set(sel.loc[(sel["tied"] == 1) & (sel["hit"] >= 1.0), "rid"].astype(str)))
+            if len(identified) > share * len(rows):
+                record.update({"identified": len(identified), "redrawn": 0, "stopped": "max_redrawn_share"})
+                log.append(record)
+                break
             redrawn = self._redraw(identified, built, failed, rnd + 1)
             record.update({"identified": len(identified), "redrawn": redrawn})
             log.append(record)
             if not redrawn:
                 record["stopped"] = "nothing to redraw"
-                break
-            if time.perf_counter() > t_end:  # recorded: a slower machine may stop earlier (no timings written)
-                record["stopped"] = "max_seconds"
                 break
         return log
 
