@@ -107,12 +107,12 @@ def test_outputs_of_earlier_versions_are_recognised(release, tmp_path):
 
 def test_rewrite_replaces_our_folder_and_marks_it(release, tmp_path):
     out = tmp_path / "out"
-    reoption_release(release, out, seed=1)
+    reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     first = _tree(out)
     assert json.loads((out / MARKER).read_text()) == {"kind": "release", "written_by": "resti"}
-    reoption_release(release, out, seed=2)
+    reoption_release(release, out, seed=2, options={"adversarial": {"rounds": 0}})
     assert _tree(out) != first and (out / MARKER).exists()
-    reoption_release(release, out, seed=1)
+    reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     assert _tree(out) == first  # same input and seed: the same bytes, marker included
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
 
@@ -136,24 +136,24 @@ def _kill_between_renames(monkeypatch):
 
 def test_interrupted_swap_is_restored_at_the_next_start(release, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    reoption_release(release, out, seed=1)
+    reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     first = _tree(out)
     with monkeypatch.context() as m:
         _kill_between_renames(m)
         with pytest.raises(KeyboardInterrupt):
-            reoption_release(release, out, seed=2)
+            reoption_release(release, out, seed=2, options={"adversarial": {"rounds": 0}})
     assert not out.exists()  # the crash window: the old release is aside, under .out.old-*
     aside = [p for p in tmp_path.iterdir() if p.name.startswith(".out.old-")]
     assert len(aside) == 1 and _tree(aside[0]) == first
     # the next start puts it back before doing anything else, then publishes the new release
-    reoption_release(release, out, seed=3)
+    reoption_release(release, out, seed=3, options={"adversarial": {"rounds": 0}})
     assert (out / MARKER).exists() and _tree(out) != first
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     # and recover() alone restores the old release
     with monkeypatch.context() as m:
         _kill_between_renames(m)
         with pytest.raises(KeyboardInterrupt):
-            reoption_release(release, out, seed=1)
+            reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     third = _tree(next(p for p in tmp_path.iterdir() if p.name.startswith(".out.old-")))
     assert recover(out) and _tree(out) == third
 
@@ -163,10 +163,10 @@ def test_stale_temporaries_are_removed_at_start(release, tmp_path):
     for name in (".out.tmp-deadbeef0001", ".out.tmp-deadbeef0002"):
         (tmp_path / name).mkdir()
         (tmp_path / name / "resti.jsonl").write_text("half written")
-    reoption_release(release, out, seed=1)
+    reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
     (tmp_path / ".other.tmp-1").mkdir()  # temporaries of another folder are not ours to remove
-    reoption_release(release, out, seed=1)
+    reoption_release(release, out, seed=1, options={"adversarial": {"rounds": 0}})
     assert (tmp_path / ".other.tmp-1").is_dir()
 
 
@@ -186,7 +186,7 @@ def test_permissions_follow_the_umask(release, tmp_path, mask):
     old = os.umask(mask)
     try:
         out = tmp_path / f"out{mask:o}"
-        reoption_release(release, out, seed=0)
+        reoption_release(release, out, seed=0, options={"adversarial": {"rounds": 0}})
     finally:
         os.umask(old)
     assert out.stat().st_mode & 0o777 == 0o777 & ~mask
@@ -209,7 +209,8 @@ def test_second_writer_of_a_folder_exits_with_a_message(release, tmp_path, capsy
     finally:
         holder.kill()
         holder.wait()
-    assert reoption_release(release, out, seed=0).validation["passed"]  # free again once the holder is gone
+    # free again once the holder is gone
+    assert reoption_release(release, out, seed=0, options={"adversarial": {"rounds": 0}}).validation["passed"]
     assert not lock_file_for(out).exists()  # the lock file leaves with its holder
 
 

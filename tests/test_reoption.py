@@ -140,8 +140,10 @@ def test_marginal_scores_follow_the_known_distribution():
 
 
 def test_tiny_release_rebuilt_preserved_verified_deterministic(tiny_release, tmp_path):
+    # the adversarial filter is left out here (its own tests are in test_options_stage): the checks below
+    # are of the rebuild, and the filter's learned attackers cost seconds on a release this small
     out = tmp_path / "out"
-    res = RO.reoption_release(tiny_release, out, seed=3)
+    res = RO.reoption_release(tiny_release, out, seed=3, options={"adversarial": {"rounds": 0}})
     assert res.validation["passed"]
     before = _read_jsonl(tiny_release / "resti.jsonl")
     after = _read_jsonl(out / "resti.jsonl")
@@ -156,18 +158,21 @@ def test_tiny_release_rebuilt_preserved_verified_deterministic(tiny_release, tmp
         if r["Task"] == "Trajectory Description" and r["Answer Detail"] != V.NO_MOVEMENT:
             st = V.parse(r["Answer Detail"]).structure
             assert {V.parse(s).structure for s in r["Candidates"].values() if s != V.NO_MOVEMENT} == {st}
-    again = RO.reoption_release(tiny_release, tmp_path / "again", seed=3)
+    again = RO.reoption_release(tiny_release, tmp_path / "again", seed=3, options={"adversarial": {"rounds": 0}})
     assert again.validation["passed"]
     for name in FILES:
         assert (out / name).read_bytes() == (tmp_path / "again" / name).read_bytes(), name
-    other = RO.reoption_release(tiny_release, tmp_path / "other", seed=4)
+    other = RO.reoption_release(tiny_release, tmp_path / "other", seed=4, options={"adversarial": {"rounds": 0}})
     assert (tmp_path / "other" / "resti.jsonl").read_bytes() != (out / "resti.jsonl").read_bytes()
     assert other.validation["passed"]
 
 
 def test_cli_reoption(tiny_release, tmp_path, capsys):
     out = tmp_path / "cli"
-    assert cli_main(["reoption", "--release", str(tiny_release), "--out", str(out), "--seed", "1"]) == 0
+    params = tmp_path / "reoption.yaml"  # the filter has its own tests; this one is the command line
+    params.write_text("options: {adversarial: {rounds: 0}}\n")
+    assert cli_main(["reoption", "--release", str(tiny_release), "--out", str(out), "--seed", "1",
+                     "--params", str(params)]) == 0
     assert "verify: PASSED" in capsys.readouterr().out
     assert verify_path(out)["passed"]
     assert cli_main(["verify", str(out)]) == 0
@@ -175,7 +180,7 @@ def test_cli_reoption(tiny_release, tmp_path, capsys):
 
 def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    RO.reoption_release(tiny_release, out, seed=5)
+    RO.reoption_release(tiny_release, out, seed=5, options={"adversarial": {"rounds": 0}})
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     from resti_lib.release import assemble as release_writer
 
@@ -189,7 +194,7 @@ def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypat
 
     monkeypatch.setattr(release_writer, "verify_release", failing)
     with pytest.raises(RO.ReoptionError, match="fails verification"):
-        RO.reoption_release(tiny_release, out, seed=0)
+        RO.reoption_release(tiny_release, out, seed=0, options={"adversarial": {"rounds": 0}})
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.tmp")]
 

@@ -196,7 +196,7 @@ def test_reoption_with_option_overrides_verifies(tmp_path):
     from resti_lib.release.reoption import reoption_release
 
     src = _tiny_release(tmp_path)
-    over = {"separation": {"scalar": {"min_rel_gap": 0.0}}}
+    over = {"separation": {"scalar": {"min_rel_gap": 0.0}}, "adversarial": {"rounds": 0}}
     res = reoption_release(src, tmp_path / "out", seed=0, options=over)
     assert res.validation["passed"]
     meta = json.loads((tmp_path / "out" / "release.json").read_text())
@@ -231,7 +231,8 @@ def test_reoption_excludes_a_row_it_cannot_option_instead_of_aborting(tmp_path):
     src = _tiny_release(tmp_path)
     n_in = len(read_jsonl(src / "resti.jsonl"))
     n_exc_in = len(read_jsonl(src / "excluded.jsonl"))
-    res = reoption_release(src, tmp_path / "out", seed=0, options={"separation": {"scalar": {"min_rel_gap": 5.0}}})
+    res = reoption_release(src, tmp_path / "out", seed=0, options={"separation": {"scalar": {"min_rel_gap": 5.0}},
+                                                                  "adversarial": {"rounds": 0}})
     exc = read_jsonl(tmp_path / "out" / "excluded.jsonl")
     new = [r for r in exc if r["reason_codes"] == ["no_valid_options"]]
     scalar_rows = [r for r in read_jsonl(src / "resti.jsonl")

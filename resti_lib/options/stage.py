@@ -288,7 +288,12 @@ class Stage:
                 rows.append({**r, "Candidates": cands, "Answer": letter})
             if not rows:
                 break
-            picks = run_picks(parse_rows(rows), names, records=rows, iface=self.iface)
+            by_task: dict[str, list[dict]] = defaultdict(list)
+            for r in rows:  # one task at a time: the cells are per task, and memory stays that of one task
+                by_task[str(r.get("Task"))].append(r)
+            frames = [run_picks(parse_rows(rs), names, records=rs, iface=self.iface) for _, rs in sorted(by_task.items())]
+            picks = pd.concat([f for f in frames if len(f)], ignore_index=True) if any(len(f) for f in frames) \
+                else pd.DataFrame(columns=["pick"])
             picks = picks[picks["pick"].notna()]
             if picks.empty:
                 break
