@@ -29,14 +29,14 @@ def test_default_plan_with_and_without_the_reference(default_stages, tmp_path):
     own = yaml.safe_load((paths.ROOT / by["00_answer_interface"]["params"]).read_text())
     assert own["release_path"]  # the audit of 00 reads release_path from its own params
     # with the reference present: 00 runs beside 99 and needs no task; 99 needs every task
-    with_ref = {**by["00_answer_interface"], "params": None, "wave_if_missing": {"param": "release_path", "wave": 3}}
+    with_ref = {**by["00_answer_interface"], "params": None, "wave_if_missing": {"param": "release_path", "wave": 5}}
     st = [by[n] for n in TASK_STAGES] + [by["99_release_report"], with_ref]
     waves, needs = plan(st, {**common, "release_path": str(ref)})
-    assert waves["00_answer_interface"] == 2 and needs["00_answer_interface"] == []
+    assert waves["00_answer_interface"] == 4 and needs["00_answer_interface"] == []
     assert needs["99_release_report"] == TASK_STAGES
     # without it: 00 audits our release, after 99, and needs everything before it
     waves, needs = plan(st, {**common, "release_path": str(tmp_path / "absent")})
-    assert waves["00_answer_interface"] == 3
+    assert waves["00_answer_interface"] == 5
     assert needs["00_answer_interface"] == [*TASK_STAGES, "99_release_report"]
 
 
@@ -147,7 +147,8 @@ def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, mon
     err = capsys.readouterr().err
     assert "stale stages not run: 01_grounding (params changed)" in err
     assert "99_release_report" not in err  # 99 is consistent with the outputs it read
-    assert run() == {"01_grounding", "99_release_report"}  # the edit, then what is downstream
+    # the edit, then what is downstream: 03 (its candidate sets follow 01's) and 99
+    assert run() == {"01_grounding", "03_dimensional", "99_release_report"}
     (out / "tables" / "05_displacement.csv").unlink()  # an output removed by hand
     assert run() == {"05_displacement"}  # rewritten identically: nothing downstream changes
     assert run(force=True) == set(every)

@@ -56,9 +56,12 @@ def test_builtin_descriptor(name):
     code = "".join(c.source for c in nb.cells)
     alias = re.search(rf"resti_lib\.tasks import {t.notebook.split('_', 1)[1]} as (\w+)", code).group(1)
     assert f"run_task({alias}.TASK" in code
-    # the main job runs it in the first wave, with its params file
-    stage = next(s for s in main_config()["stages"] if s["notebook"] == t.notebook)
-    assert stage["wave"] == 1 and stage["params"].endswith(f"{t.params_name}.yaml")
+    # the main job runs it in the first wave, or the wave after the tasks it follows, with its params file
+    stages = {s["notebook"]: s for s in main_config()["stages"]}
+    stage = stages[t.notebook]
+    followed = [task_for(x).notebook for x in t.follows]
+    assert stage["wave"] == 1 + max((stages[n]["wave"] for n in followed), default=0)
+    assert stage["needs"] == followed and stage["params"].endswith(f"{t.params_name}.yaml")
     # the report shows its figures under "Tasks"
     specs = {s.pattern: s for s in figure_specs()}
     for suffix in t.figures:

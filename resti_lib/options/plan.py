@@ -75,6 +75,7 @@ class RowPlan:
     donor: str | None = None
     share_with: str | None = None  # another row whose candidate set this row reuses
     couple_with: str | None = None  # another row whose candidate set this row's is a translate of
+    link: object | None = None  # a related row of another task whose candidate set this row's follows (.follow.Link)
     evidence: dict = field(default_factory=dict)
 
     @property

@@ -49,19 +49,25 @@ from .. import LETTERS
 from .. import values as V
 from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
+from .follow import FOLLOWS, find_link, follow_strings
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
 from .spec import (
     Interface,
+    OptionSpec,
     spec_of,
 )
+
+#: quantities whose rows other rows may follow (:data:`.follow.FOLLOWS`)
+DRIVER_QUANTITIES = frozenset(q for qs, _, _ in FOLLOWS.values() for q in qs)
 
 
 class Stage:
     """Plans and builds the options of a set of accepted rows (see the module docstring); the
     group fits and candidate draws of each answer kind are its builder's (:mod:`resti_lib.options.kinds`)."""
 
-    def __init__(self, records: list[dict], *, iface: Interface, seed: int = 0, extras: dict | None = None):
+    def __init__(self, records: list[dict], *, iface: Interface, seed: int = 0, extras: dict | None = None,
+                 peers: list[dict] | None = None, peer_iface: Interface | None = None):
         self.records = records
         self.seed = int(seed)
         self.iface = iface
@@ -77,6 +83,18 @@ class Stage:
             raise InputError(f"row ids are not unique, e.g. {dup[:3]}", field="ReSTI ID")
         self.by_id = {p.rid: p for p in self.plans}
         self.index = {p.rid: i for i, p in enumerate(self.plans)}
+        # rows of other tasks whose options are already built (a task run after its drivers' runs):
+        # followed, never drawn or shipped here
+        self.peers: dict[str, tuple] = {}
+        for i, r in enumerate(peers or []):
+            rid = str(r.get("ReSTI ID") or f"peer-{i}")
+            if rid in self.by_id or not isinstance(r.get("Candidates"), dict):
+                continue
+            try:
+                self.peers[rid] = (spec_of(r, rid, None, iface=peer_iface or iface),
+                                   [str(x) for x in r["Candidates"].values()])
+            except InputError:
+                continue
         self.groups: dict[str, GroupModel] = {}
         self.cur_draw = None
         self.last_draw = None
@@ -106,6 +124,7 @@ class Stage:
             kind = ps[0].spec.kind
             self.groups[g] = builder_for(kind).fit(self, g, ps)
         self._share_sets()
+        self._links()
         for task in sorted({p.spec.task for p in self.plans}):
             ids = {p.rid: set(LETTERS) for p in self.plans if p.spec.task == task}
             sched = constrained_schedule(ids, list(LETTERS), seed=self.seed, group=f"letters|{task}")
@@ -138,6 +157,45 @@ class Stage:
                 p.couple_with = base.rid
             else:
                 bases[key].append(p)
+
+    def _links(self) -> None:
+        """Rows whose candidate set follows a related row of another task (:mod:`.follow`): a row
+        that draws its own set (not shared, coupled or fixed) and a driver of its recording — a row
+        of this stage or an already built peer — whose answer relates to its answer."""
+        follow = self.params.get("follow") or {}
+        drivers: dict[str, list[OptionSpec]] = defaultdict(list)
+        for p in self.plans:
+            if p.spec.obs.quantity in DRIVER_QUANTITIES:
+                drivers[p.spec.obs.sequence].append(p.spec)
+        for spec, _ in self.peers.values():
+            if spec.obs.quantity in DRIVER_QUANTITIES:
+                drivers[spec.obs.sequence].append(spec)
+        for p in self.plans:
+            if p.share_with is not None or p.couple_with is not None or p.fixed or p.answer_is_fixed:
+                continue
+            if p.spec.obs.quantity in FOLLOWS and drivers.get(p.spec.obs.sequence):
+                p.link = find_link(p.spec, drivers[p.spec.obs.sequence], follow)
+        depth: dict[str, int] = {}
+
+        def depth_of(rid: str, seen: frozenset = frozenset()) -> int:
+            if rid in depth:
+                return depth[rid]
+            p = self.by_id.get(rid)
+            if p is None or rid in seen:  # a peer, or a loop (none by construction)
+                return 0
+            base = p.share_with or p.couple_with or (p.link.driver if p.link is not None else None)
+            depth[rid] = 0 if base is None else 1 + depth_of(base, seen | {rid})
+            return depth[rid]
+
+        self.order = sorted(range(len(self.plans)), key=lambda i: (depth_of(self.plans[i].rid), i))
+
+    def _driver(self, rid: str) -> tuple[OptionSpec, list[str]] | None:
+        """A driver's spec and five candidate strings (a row of this stage once built, or a peer)."""
+        if rid in self.peers:
+            return self.peers[rid]
+        if rid in self.strings:
+            return self.by_id[rid].spec, self.strings[rid]
+        return None
 
     # -------------------------------------------------------------------- building
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
@@ -206,14 +264,15 @@ class Stage:
         adversarial filter (:meth:`adversarial_filter`); its rounds are in ``evidence.attrs``."""
         failed: dict[str, str] = {}
         self.s_factors = self.calibrate()
-        it = self.plans
+        it = self.order
         if progress:
             from tqdm.auto import tqdm
 
-            it = tqdm(self.plans, desc="options", unit="row", leave=False)
+            it = tqdm(self.order, desc="options", unit="row", leave=False)
         self.reveals = self._reveals()
         built: dict[str, list[str]] = {}
-        for p, r in zip(it, self.records):
+        for i in it:  # drivers before the rows that follow them
+            p, r = self.plans[i], self.records[i]
             strings = self._dependent(p, built)
             if strings is None:
                 try:
@@ -257,7 +316,22 @@ class Stage:
             if coupled is not None and self._coupled_ok(p, coupled):
                 p.evidence.update({"coupled_with": p.couple_with})
                 return coupled
+        if p.link is not None:
+            drv = self._driver(p.link.driver)
+            followed = follow_strings(p.link, p.spec, drv[0], drv[1]) if drv is not None else None
+            if followed is not None and self._coupled_ok(p, followed):
+                p.evidence.update({"follows": p.link.driver, "relation": p.link.relation})
+                return followed
+            p.evidence.pop("follows", None)
         return None
+
+    def _base(self, rid: str) -> str:
+        """The row whose draw a row's candidates come from (itself when it draws its own)."""
+        p = self.by_id[rid]
+        for b in (p.share_with, p.couple_with, p.evidence.get("follows")):
+            if b is not None and b in self.by_id and b != rid:
+                return self._base(b) if b not in self.peers else rid
+        return rid
 
     # -------------------------------------------------------------------- adversarial filtering
     def adversarial_filter(self, built: dict, failed: dict) -> list[dict]:
@@ -332,16 +406,16 @@ class Stage:
 
     def _redraw(self, rids: list[str], built: dict, failed: dict, rnd: int) -> int:
         """Draw the named rows' distractors again (their base row when they follow one), then the rows
-        that follow those. Returns how many rows were drawn again."""
+        that follow those (in build order). Returns how many rows were drawn again."""
         bases = []
         for rid in rids:
-            p = self.by_id.get(rid)
-            if p is None:
+            if rid not in self.by_id:
                 continue
-            base = p.share_with if p.share_with in built else (p.couple_with if p.couple_with in built else p.rid)
+            base = self._base(rid)
             if base in built and base not in bases and not self.by_id[base].answer_is_fixed:
                 bases.append(base)
         n = 0
+        changed = set()
         for rid in bases:
             p = self.by_id[rid]
             try:
@@ -351,14 +425,17 @@ class Stage:
             built[rid] = strings
             self.strings[rid] = strings
             p.evidence["adversarial_redrawn"] = rnd
+            changed.add(rid)
             n += 1
-        for q in self.plans:  # rows that follow a redrawn row follow it again
-            if q.rid in failed or q.rid in bases:
+        for i in self.order:  # rows that follow a redrawn row follow it again
+            q = self.plans[i]
+            if q.rid in failed or q.rid in changed or q.rid in built:
                 continue
-            if q.share_with in bases or q.couple_with in bases:
+            if {q.share_with, q.couple_with, q.evidence.get("follows")} & changed:
                 again = self._dependent(q, built)
                 if again is not None:
                     self.strings[q.rid] = again
+                    changed.add(q.rid)
         return n
 
     def _coupled_ok(self, p: RowPlan, strings: list[str]) -> bool:
@@ -442,13 +519,16 @@ class Stage:
 
 
 def build_options(records: list[dict], *, iface: Interface, seed: int = 0, extras: dict | None = None,
-                  progress: bool = False, on_failure: str = "raise") -> tuple[list[dict], pd.DataFrame, dict]:
+                  progress: bool = False, on_failure: str = "raise",
+                  peers: list[dict] | None = None,
+                  peer_iface: Interface | None = None) -> tuple[list[dict], pd.DataFrame, dict]:
     """Candidates and letters for every row under the answer interface ``iface`` (the option params
     and each task's rule and question reader; see the module docstring); returns (rows, evidence,
     failed) — see :meth:`Stage.build`."""
     if not records:
         return [], pd.DataFrame(), {}
-    return Stage(records, iface=iface, seed=seed, extras=extras).build(progress=progress, on_failure=on_failure)
+    st = Stage(records, iface=iface, seed=seed, extras=extras, peers=peers, peer_iface=peer_iface)
+    return st.build(progress=progress, on_failure=on_failure)
 
 
 __all__ = ["OptionError", "Stage", "build_options"]

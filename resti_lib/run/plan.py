@@ -23,16 +23,32 @@ STAGE_KEYS = frozenset({"notebook", "params", "wave", "needs", "on_demand", "wav
 
 
 def task_stages(params_file=None) -> list[dict]:
-    """One stage per registered task, in notebook order: ``{notebook, params, wave}``. The params
-    file is ``<params_name>.yaml`` beside ``params_file`` when there is one, else in ``params/``."""
+    """One stage per registered task, in notebook order: ``{notebook, params, wave, needs}``. The
+    params file is ``<params_name>.yaml`` beside ``params_file`` when there is one, else in
+    ``params/``. A task runs in wave 1, or after the tasks it follows (``Task.follows``: its
+    candidate sets follow theirs), which it then needs."""
     from ..tasks import all_tasks
 
     here = paths.resolve(params_file).parent if params_file else paths.PARAMS
+    tasks = {t.name: t for t in all_tasks()}
+    depth: dict[str, int] = {}
+
+    def depth_of(name: str, seen: tuple = ()) -> int:
+        if name in seen:
+            raise InputError(f"tasks follow each other in a loop: {' -> '.join((*seen, name))}", field="follows")
+        if name not in depth:
+            t = tasks[name]
+            unknown = [x for x in t.follows if x not in tasks]
+            if unknown:
+                raise InputError(f"task {name!r} follows unregistered task(s) {unknown}", field="follows")
+            depth[name] = max((1 + depth_of(x, (*seen, name)) for x in t.follows), default=0)
+        return depth[name]
+
     out = []
-    for t in sorted(all_tasks(), key=lambda t: t.notebook):
+    for t in sorted(tasks.values(), key=lambda t: t.notebook):
         own = here / f"{t.params_name}.yaml"
         out.append({"notebook": t.notebook, "params": str(own if own.is_file() else paths.PARAMS / own.name),
-                    "wave": TASK_WAVE})
+                    "wave": TASK_WAVE + depth_of(t.name), "needs": [tasks[x].notebook for x in t.follows]})
     return out
 
 
@@ -49,7 +65,15 @@ def main_config(params_file=None) -> dict:
     listed = cfg.get("stages") or []
     if isinstance(listed, list):
         named = {s.get("notebook") for s in listed if isinstance(s, dict)}
-        cfg["stages"] = [s for s in task_stages(params_file) if s["notebook"] not in named] + listed
+        tasks = [s for s in task_stages(params_file) if s["notebook"] not in named]
+        last = max((s["wave"] for s in tasks), default=TASK_WAVE)
+        for i, s in enumerate(listed):  # a stage that reads every task's outputs runs after the last task wave
+            if isinstance(s, dict) and s.get("needs") is None and not s.get("on_demand") \
+                    and isinstance(s.get("wave"), int) and TASK_WAVE < s["wave"] <= last:
+                raise InputError(f"stage {s.get('notebook')} runs in wave {s['wave']}, beside task stages (the tasks "
+                                 f"that follow other tasks run up to wave {last}); give it wave {last + 1} or later",
+                                 file=paths.resolve(params_file), row=f"stage {i}", field="wave")
+        cfg["stages"] = tasks + listed
     return cfg
 
 

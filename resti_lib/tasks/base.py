@@ -204,6 +204,7 @@ class Task:
     operators: ClassVar[tuple[str, ...]] = ()
     missing_defects: ClassVar[dict] = {k: v for k, v in MISSING_DEFECTS.items() if k in ("unit", "subject")}
     setting_overrides: ClassVar[tuple[str, ...]] = ()
+    follows: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def descriptor_problems(cls) -> list[str]:
@@ -220,6 +221,8 @@ class Task:
         if not isinstance(cls.figures, dict) or not all(isinstance(k, str) and isinstance(v, str) and v.strip()
                                                         for k, v in cls.figures.items()):
             out.append("figures must map a file-name suffix to a caption")
+        if not isinstance(cls.follows, tuple) or not all(isinstance(x, str) and x != cls.name for x in cls.follows):
+            out.append("follows must be a tuple of other task names")
         for hook in ("read_contract", "reconstruct", "rewrite"):
             if getattr(cls, hook) is getattr(Task, hook):
                 out.append(f"no {hook} hook")
@@ -364,14 +367,17 @@ class TaskResult:
     interface: dict = field(default_factory=dict)  # the answer interface the options were built with
 
 
-def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface) -> TaskResult:
+def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface, peers: list | None = None,
+             peer_iface=None) -> TaskResult:
     """Options, letters, ReSTI rows, exclusion records and provenance for one task's outcomes.
 
     ``iface``: the run's answer interface (:class:`resti_lib.options.spec.Interface`: the option
     params and the task's comparison rule and question reader), recorded with the outputs so that
     the release and ``resti verify`` check the options against the params they were built with. A
     row whose options cannot be built under the constraints is excluded (``no_valid_options``),
-    never shipped with weaker options. Outcomes come back in legacy row order.
+    never shipped with weaker options. Outcomes come back in legacy row order. ``peers``: the
+    accepted rows of the tasks this one follows (read under ``peer_iface``), whose candidate sets
+    related rows follow (:mod:`resti_lib.options.follow`).
     """
     from ..options.stage import build_options
 
@@ -397,7 +403,8 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface)
             "Answer Detail": detail, "ID": int(legacy_row["ID"]), "scene": SCENE_OF_SOURCE[o.source],
             "ReSTI ID": rid, "Legacy Row Key": o.key})
     t_opt = time.perf_counter()
-    built, ev, failed = build_options(rows, iface=iface, seed=seed, extras=extras, on_failure="skip")
+    built, ev, failed = build_options(rows, iface=iface, seed=seed, extras=extras, on_failure="skip", peers=peers,
+                                      peer_iface=peer_iface)
     t_opt = time.perf_counter() - t_opt
     for rid, problem in failed.items():
         index[rid].exclude("no_valid_options", option_error=problem)

@@ -87,6 +87,7 @@ class Displacement(MotionTask):
     notebook = "05_displacement"
     order = 4
     answer_kind = "scalar"
+    follows = ("Trajectory Description",)
     quantity = "displacement"
     figures = {
         "legacy_vs_source": ("Displacement & Path Length: legacy against source value per source (accepted rows; dashed: "

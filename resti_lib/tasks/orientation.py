@@ -185,6 +185,7 @@ class Orientation(Task):
     notebook = "02_orientation"
     order = 6
     answer_kind = "scalar"
+    follows = ("Trajectory Description",)
     rule_key = "angle_abs_tol_deg"
     quantity = "heading_change"
     figures = {

@@ -257,10 +257,27 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
         outcomes.append(o.exclude("malformed_row", field=p.field, problem=p.message))
     _answer_layer(outcomes, mine)
     iface = Interface(load_option_params(), {t.name: t.interface(params)})
-    result = finalize(outcomes, mine, seed=int(params["seed"]), iface=iface)
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(t.name)
+    peers, peer_iface = followed_rows(t, out_dir.parent)
+    result = finalize(outcomes, mine, seed=int(params["seed"]), iface=iface, peers=peers, peer_iface=peer_iface)
     write_task_outputs(result, out_dir)
     return TaskRun(t.name, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)
+
+
+def followed_rows(t: Task, tasks_dir: Path) -> tuple[list[dict], Interface | None]:
+    """The accepted rows of the tasks ``t`` follows (``Task.follows``), as their stages of this run
+    wrote them to ``tasks_dir/<slug>/accepted.jsonl`` (the main job runs those stages first), and the
+    answer interface that reads them. A task run alone, without them, draws its own candidate sets."""
+    from ..io.files import read_jsonl
+
+    rows, tasks = [], {}
+    for name in t.follows:
+        f = Path(tasks_dir) / slug(name) / "accepted.jsonl"
+        if f.is_file():
+            d = task_for(name)
+            rows += read_jsonl(f)
+            tasks[name] = d.interface(d.settings({}))
+    return rows, (Interface(load_option_params(), tasks) if tasks else None)
 
 
 def run_task(task: str, params: dict) -> TaskRun:

@@ -96,6 +96,7 @@ class Speed(MotionTask):
     notebook = "06_speed"
     order = 5
     answer_kind = "scalar"
+    follows = ("Displacement & Path Length",)
     quantity = "speed"
     figures = {
         "statistics": ("Speed & Acceleration: the legacy 'speed' against displacement/Δt (circles) and path/Δt "

@@ -30,15 +30,12 @@ from collections import Counter, defaultdict
 import numpy as np
 
 from ... import values as V
+from ..follow import DIMENSIONS, DISTANCES, circular, same_window, turn_sum, window
 from .batch import Batch
 from .common import top
 from .features import premise_parts, rot_angle
 from .registry import attack
 
-WINDOW_TOL_S = 0.1      # two windows are the same when both ends agree within this many seconds ...
-WINDOW_TOL_REL = 0.01   # ... or this fraction of the window, whichever is larger
-DISTANCES = ("displacement", "path_length")
-DIMENSIONS = ("length", "width", "height")
 MIRROR = {"left": "right", "right": "left", "closer": "farther", "farther": "closer", "front": "back",
           "back": "front"}
 
@@ -54,18 +51,6 @@ def _facts(batch: Batch, j: int, keyed: bool) -> list:
     make every candidate match one of the sibling's, so the blind version singles out nothing."""
     p = batch.rows[j]
     return [p.values[p.answer]] if keyed else list(p.values.values())
-
-
-def _window(o) -> tuple[float, float] | None:
-    """The interval a question asks about (None for an instant or no times)."""
-    if o.time_start is None or o.time_end is None or not o.time_end > o.time_start:
-        return None
-    return float(o.time_start), float(o.time_end)
-
-
-def _same_window(a, b) -> bool:
-    tol = max(WINDOW_TOL_S, WINDOW_TOL_REL * (a[1] - a[0]))
-    return abs(a[0] - b[0]) <= tol and abs(a[1] - b[1]) <= tol
 
 
 def _siblings(batch: Batch, i: int, want) -> list[int]:
@@ -98,11 +83,11 @@ def _trajectory_row(p) -> bool:
 
 def _window_facts(batch: Batch, i: int, quantities: tuple, value_of) -> list:
     """``value_of(j)`` of the sibling rows measuring one of ``quantities`` over the same window as row i."""
-    w = _window(batch.obs[i])
+    w = window(batch.obs[i])
     if w is None:
         return []
-    sib = _siblings(batch, i, lambda j: batch.obs[j].quantity in quantities and _window(batch.obs[j]) is not None
-                    and _same_window(w, _window(batch.obs[j])))
+    sib = _siblings(batch, i, lambda j: batch.obs[j].quantity in quantities and window(batch.obs[j]) is not None
+                    and same_window(w, window(batch.obs[j])))
     return [value_of(j) for j in sib]
 
 
@@ -117,7 +102,7 @@ def _flat(lists) -> list:
 def _rate_window(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
-        w = _window(o)
+        w = window(o)
         if w is None or not _scalar_row(p):
             continue
         span = w[1] - w[0]
@@ -145,15 +130,6 @@ def _path_length(batch: Batch, keyed: bool):
     return out
 
 
-def turn_sum(v: V.Trajectory) -> float:
-    """The signed heading change of a trajectory description (left turns positive), in degrees."""
-    return float(sum(x for k, x in v.segments if k == "turn"))
-
-
-def _circular(a: float, b: float) -> float:
-    return abs((a - b + 180.0) % 360.0 - 180.0)
-
-
 def _turn_sum(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
@@ -169,7 +145,7 @@ def _turn_sum(batch: Batch, keyed: bool):
             continue
         preds = [x for x in preds if x is not None]
         if preds:
-            out[i] = top({k: -min(_circular(x, y) for y in preds) for k, x in value.items()})
+            out[i] = top({k: -min(circular(x, y) for y in preds) for k, x in value.items()})
     return out
 
 

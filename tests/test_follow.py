@@ -1,0 +1,97 @@
+"""Candidate sets that follow a related row of another task (resti_lib/options/follow.py): the links
+found, and the follower's candidates computed by hand from the driver's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from resti_lib import values as V
+from resti_lib.adjudicate import Rule
+from resti_lib.errors import InputError
+from resti_lib.options.follow import Link, find_link, follow_strings
+from resti_lib.options.observables import Observables
+from resti_lib.options.spec import OptionSpec
+from resti_lib.run.plan import main_config
+
+TOL = {"relative_tol": 0.05, "angle_tol_deg": 3.0}
+
+
+def spec(rid, task, quantity, detail, *, t0=0.0, t1=4.0, seq="seg1", noun="camera", kind=None):
+    v = V.parse(detail)
+    obs = Observables(task=task, source="Waymo", video=f"{seq}_camera_1", sequence=seq, camera="1", quantity=quantity,
+                      time_start=t0, time_end=t1, window_s=None if t0 is None else t1 - t0, subject=noun,
+                      subject_class=noun)
+    kind = kind or ("angle" if isinstance(v, V.Scalar) and v.is_angle else v.kind)
+    return OptionSpec(rid, task, "Waymo", kind, v, detail, obs, Rule())
+
+
+def box(length, w, h, x=0.0):
+    return V.format_box([x, 0.0, 10.0], [length, w, h], np.eye(3))
+
+
+def test_speed_follows_a_distance_over_the_same_window():
+    d = spec("d", "Displacement & Path Length", "path_length", "8.00m")
+    f = spec("f", "Speed & Acceleration", "speed", "2.00m/s")
+    link = find_link(f, [d], TOL)
+    assert link == Link("f", "d", "per_window", None, False)
+    # 8 m over 4 s is 2 m/s; the distractors 4, 12, 16, 2 m over 4 s are 1, 3, 4, 0.5 m/s
+    out = follow_strings(link, f, d, ["4.00m", "8.00m", "12.00m", "16.00m", "2.00m"])
+    assert sorted(out) == sorted(["1.00m/s", "2.00m/s", "3.00m/s", "4.00m/s", "0.50m/s"])
+
+
+def test_no_link_without_the_relation():
+    d = spec("d", "Displacement & Path Length", "path_length", "8.00m")
+    assert find_link(spec("f", "Speed & Acceleration", "speed", "3.00m/s"), [d], TOL) is None  # 8/4 = 2, not 3
+    assert find_link(spec("f", "Speed & Acceleration", "speed", "2.00m/s", t0=1.0, t1=5.0), [d], TOL) is None
+    assert find_link(spec("f", "Speed & Acceleration", "speed", "2.00m/s", seq="seg2"), [d], TOL) is None
+    same_task = spec("d2", "Speed & Acceleration", "path_length", "8.00m")
+    assert find_link(spec("f", "Speed & Acceleration", "speed", "2.00m/s"), [same_task], TOL) is None
+
+
+def test_a_dimension_follows_the_matching_edge_of_its_subjects_box():
+    d = spec("g", "3D Video Grounding", "box", box(4.5, 1.8, 1.5), noun="car")
+    f = spec("f", "Dimensional Measurement", "width", "1.80m", noun="car")
+    link = find_link(f, [d], TOL)
+    assert link.relation == "edge" and link.edge == 1
+    cands = [box(4.5, 1.8, 1.5), box(4.0, 2.1, 1.5, 1.0), box(5.0, 1.5, 1.5, 2.0), box(4.5, 2.4, 1.2, 3.0),
+             box(3.9, 1.2, 1.6, 4.0)]
+    out = follow_strings(link, f, d, cands)
+    assert sorted(out) == sorted(["1.80m", "2.10m", "1.50m", "2.40m", "1.20m"])
+    assert find_link(spec("f", "Dimensional Measurement", "width", "1.80m", noun="truck"), [d], TOL) is None
+
+
+def test_a_heading_change_follows_the_turn_sum():
+    d = spec("t", "Trajectory Description", "trajectory", "move forward 10.0m, then turn left 30°, then move forward 5.0m")
+    f = spec("f", "Ego-Centric Orientation", "heading_change", "31.50°")
+    link = find_link(f, [d], TOL)
+    assert link.additive and link.relation == "turn_sum"
+    cands = ["move forward 10.0m, then turn left 30°, then move forward 5.0m",
+             "move forward 10.0m, then turn right 45°, then move forward 5.0m",
+             "move forward 10.0m, then turn left 90°, then move forward 5.0m",
+             "move forward 12.0m, then turn left 60°, then move forward 5.0m",
+             "move forward 10.0m, then turn right 10°, then move forward 5.0m"]
+    # the answer is 1.5 degrees past the turn sum; so is every image
+    assert sorted(follow_strings(link, f, d, cands)) == sorted(["31.50°", "-43.50°", "91.50°", "61.50°", "-8.50°"])
+    # two driver candidates with one turn sum give one image twice: no set
+    cands[1] = "move forward 20.0m, then turn left 30°, then move forward 5.0m"
+    assert follow_strings(link, f, d, cands) is None
+
+
+def test_task_stages_run_after_the_tasks_they_follow(tmp_path):
+    stages = {s["notebook"]: s for s in main_config()["stages"]}
+    assert stages["06_speed"]["wave"] > stages["05_displacement"]["wave"] > stages["07_trajectory"]["wave"]
+    from resti_lib.tasks import all_tasks
+
+    assert stages["99_release_report"]["wave"] > max(stages[t.notebook]["wave"] for t in all_tasks())
+    # a stage that reads every task's outputs, listed beside a task wave, is refused by name
+    import yaml
+
+    from resti_lib import paths
+
+    cfg = yaml.safe_load((paths.PARAMS / "default.yaml").read_text())
+    cfg["stages"][0]["wave"] = 2
+    f = tmp_path / "main.yaml"
+    f.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError, match="99_release_report runs in wave 2"):
+        main_config(f)
