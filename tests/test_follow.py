@@ -9,7 +9,7 @@ import pytest
 from resti_lib import values as V
 from resti_lib.adjudicate import Rule
 from resti_lib.errors import InputError
-from resti_lib.options.follow import Link, find_link, follow_strings
+from resti_lib.options.follow import Link, find_box_links, find_link, follow_box, follow_strings
 from resti_lib.options.observables import Observables
 from resti_lib.options.spec import OptionSpec
 from resti_lib.run.plan import main_config
@@ -49,16 +49,25 @@ def test_no_link_without_the_relation():
     assert find_link(spec("f", "Speed & Acceleration", "speed", "2.00m/s"), [same_task], TOL) is None
 
 
-def test_a_dimension_follows_the_matching_edge_of_its_subjects_box():
-    d = spec("g", "3D Video Grounding", "box", box(4.5, 1.8, 1.5), noun="car")
-    f = spec("f", "Dimensional Measurement", "width", "1.80m", noun="car")
-    link = find_link(f, [d], TOL)
-    assert link.relation == "edge" and link.edge == 1
-    cands = [box(4.5, 1.8, 1.5), box(4.0, 2.1, 1.5, 1.0), box(5.0, 1.5, 1.5, 2.0), box(4.5, 2.4, 1.2, 3.0),
-             box(3.9, 1.2, 1.6, 4.0)]
-    out = follow_strings(link, f, d, cands)
-    assert sorted(out) == sorted(["1.80m", "2.10m", "1.50m", "2.40m", "1.20m"])
-    assert find_link(spec("f", "Dimensional Measurement", "width", "1.80m", noun="truck"), [d], TOL) is None
+def test_a_box_follows_the_dimensions_asked_of_its_subject():
+    g = spec("g", "3D Video Grounding", "box", box(4.5, 1.8, 1.5), noun="car")
+    width = spec("w", "Dimensional Measurement", "width", "1.80m", noun="car")
+    length = spec("l", "Dimensional Measurement", "length", "450cm", noun="car")
+    links = find_box_links(g, [width, length], TOL)
+    assert [(lk.driver, lk.edge) for lk in links] == [("l", 0), ("w", 1)]
+    own = [box(4.5, 1.8, 1.5), box(4.4, 1.82, 1.5, 1.0), box(4.6, 1.79, 1.4, 2.0), box(4.5, 1.81, 1.6, 3.0),
+           box(4.45, 1.8, 1.55, 4.0)]
+    drivers = {"w": (width, ["1.80m", "2.10m", "1.50m", "2.40m", "1.20m"]),
+               "l": (length, ["450cm", "400cm", "500cm", "420cm", "480cm"])}
+    out = follow_box(links, g, drivers, own, {"d0": 3, "d1": 3, "d2": 3})
+    got = sorted((V.parse(t).lwh[0], V.parse(t).lwh[1], V.parse(t).lwh[2], V.parse(t).center[0]) for t in out)
+    # distractor j keeps its own centre and height; its length and width are the dimension rows'
+    # distractor j (in metres): by hand
+    assert got == sorted([(4.5, 1.8, 1.5, 0.0), (4.0, 2.1, 1.5, 1.0), (5.0, 1.5, 1.4, 2.0), (4.2, 2.4, 1.6, 3.0),
+                          (4.8, 1.2, 1.55, 4.0)])
+    # another noun, or a dimension no edge has: no link
+    assert find_box_links(g, [spec("w", "Dimensional Measurement", "width", "1.80m", noun="truck")], TOL) == []
+    assert find_box_links(g, [spec("w", "Dimensional Measurement", "width", "2.50m", noun="car")], TOL) == []
 
 
 def test_a_heading_change_follows_the_turn_sum():

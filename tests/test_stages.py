@@ -46,7 +46,9 @@ def test_only_adds_what_is_downstream(default_stages, tmp_path, monkeypatch):
     monkeypatch.setenv("RESTI_SHARED", str(tmp_path))  # the reference release is present
     _, needs = plan(stages, common)
     assert match_only(stages, ["dimensional"]) == ["03_dimensional"]
-    assert downstream(["03_dimensional"], needs, stages) == ["99_release_report"]
+    assert downstream(["04_relation"], needs, stages) == ["99_release_report"]
+    # a task whose candidate sets another task's follow: that task too
+    assert downstream(["03_dimensional"], needs, stages) == ["01_grounding", "99_release_report"]
     assert downstream(["99_release_report"], needs, stages) == []
     with pytest.raises(InputError, match="at least one stage"):
         match_only(stages, [])
@@ -143,12 +145,11 @@ def test_run_skips_up_to_date_stages_and_only_refreshes_downstream(tmp_path, mon
     assert run() == set()  # nothing changed
     grounding.write_text(grounding.read_text().replace("alpha: 0.05", "alpha: 0.01"))
     capsys.readouterr()
-    assert run(only=["dimensional"]) == {"03_dimensional"}  # its key did not change: 99 stays
+    assert run(only=["relation"]) == {"04_relation"}  # its key did not change: 99 stays
     err = capsys.readouterr().err
     assert "stale stages not run: 01_grounding (params changed)" in err
     assert "99_release_report" not in err  # 99 is consistent with the outputs it read
-    # the edit, then what is downstream: 03 (its candidate sets follow 01's) and 99
-    assert run() == {"01_grounding", "03_dimensional", "99_release_report"}
+    assert run() == {"01_grounding", "99_release_report"}  # the edit, then what is downstream
     (out / "tables" / "05_displacement.csv").unlink()  # an output removed by hand
     assert run() == {"05_displacement"}  # rewritten identically: nothing downstream changes
     assert run(force=True) == set(every)

@@ -2,7 +2,8 @@
 
 Rows of one recording measure one world, so one row's answer often follows from another's by physics
 (the attacks of family ``relation`` in :mod:`resti_lib.options.attacks.relation` read those links): a
-length is an edge of the subject's box, a heading change the turn sum of a trajectory description over
+box's edge is the length, width or height of its subject asked in another row, a heading change the
+turn sum of a trajectory description over
 the same window, a path length its total distance, a mean speed a distance over the window divided
 by the window. A reader who sees the driver row's five candidates then picks the follower's candidate
 that matches one of them. Here the follower's distractors are the images of the driver's distractors
@@ -34,11 +35,12 @@ DISTANCES = ("displacement", "path_length")
 WINDOW_TOL_S = 0.1      # two windows are the same when both ends agree within this many seconds ...
 WINDOW_TOL_REL = 0.01   # ... or this fraction of the window, whichever is larger
 
-#: follower quantity -> (driver quantities, what a driver candidate measures, additive?)
+#: follower quantity -> (driver quantities, what a driver candidate measures, additive?). A box
+#: follows the dimensions of its subject asked in other rows (its distractors' edges are their
+#: distractors' images; the rest of the box is its own draw): a box's distractors' edges may lie closer
+#: together than a dimension's separation floor allows, a dimension's never do.
 FOLLOWS: dict[str, tuple[tuple[str, ...], str, bool]] = {
-    "length": (("box",), "edge", False),
-    "width": (("box",), "edge", False),
-    "height": (("box",), "edge", False),
+    "box": (DIMENSIONS, "box_edge", False),
     "heading_change": (("trajectory",), "turn_sum", True),
     "path_length": (("trajectory",), "total_distance", False),
     "speed": (DISTANCES, "per_window", False),
@@ -78,8 +80,8 @@ class Link:
     additive: bool
 
     def measure(self, v) -> float | None:
-        if self.relation == "edge":
-            return float(v.lwh[self.edge]) if isinstance(v, V.Box) else None
+        if self.relation == "box_edge":
+            return abs(float(v.si)) if isinstance(v, V.Scalar) else None
         if self.relation == "turn_sum":
             return turn_sum(v) if isinstance(v, V.Trajectory) else None
         if self.relation == "total_distance":
@@ -88,18 +90,34 @@ class Link:
             return abs(float(v.si)) if isinstance(v, V.Scalar) else None
         return None
 
-    def image(self, follower: OptionSpec, driver_answer, driver_candidate) -> float | None:
+    def residual(self, follower: OptionSpec, driver_answer) -> float | None:
+        """How far the follower's answer is from what the driver's answer gives: degrees (angles) or
+        a log ratio (magnitudes); None where it cannot be formed."""
+        g = self.measure(driver_answer)
+        if g is None or not math.isfinite(g):
+            return None
+        if self.additive:
+            return float(V.wrap_degrees(float(follower.value.value) - g))
+        if self.relation == "box_edge":
+            e = float(follower.value.lwh[self.edge])
+            return math.log(e / g) if e > 0 and g > 0 else None
+        w = window(follower.obs)
+        pred = g / (w[1] - w[0]) if self.relation == "per_window" and w is not None else g
+        fx = abs(float(follower.value.si))
+        return math.log(fx / pred) if pred > 0 and fx > 0 else None
+
+    def image(self, follower: OptionSpec, driver_answer, driver_candidate, offset: float = 0.0) -> float | None:
         """The follower's value that relates to ``driver_candidate`` as its answer relates to the
-        driver's answer (None where it cannot be formed)."""
+        driver's answer, moved by ``offset`` (degrees or log ratio); None where it cannot be formed."""
         a, c = self.measure(driver_answer), self.measure(driver_candidate)
         if a is None or c is None or not (math.isfinite(a) and math.isfinite(c)):
             return None
-        x = float(follower.value.value)
+        x = float(follower.value.lwh[self.edge]) if self.relation == "box_edge" else float(follower.value.value)
         if self.additive:
-            return float(V.wrap_degrees(x + (c - a)))
+            return float(V.wrap_degrees(x + (c - a) + offset))
         if a <= 0 or c <= 0:
             return None
-        return x * c / a
+        return x * c / a * math.exp(offset)
 
 
 def find_link(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> Link | None:
@@ -118,47 +136,87 @@ def find_link(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> Link | 
         od = d.obs
         if od.sequence != o.sequence or od.quantity not in quantities or d.task == f.task:
             continue
-        if relation == "edge":
-            if od.subject_class != o.subject_class or not isinstance(d.value, V.Box):
-                continue
-            edges = [0, 1, 2]
-        else:
-            wd = window(od)
-            if w is None or wd is None or not same_window(w, wd):
-                continue
-            edges = [None]
+        wd = window(od)
+        if w is None or wd is None or not same_window(w, wd):
+            continue
+        edges = [None]
         for k in edges:
             link = Link(f.rid, d.rid, relation, k, additive)
-            g = link.measure(d.value)
-            if g is None or not math.isfinite(g):
+            r = link.residual(f, d.value)
+            if r is None:
                 continue
-            if additive:
-                err = circular(float(f.value.value), g)
-                ok = err <= deg_tol
-                score = err / max(deg_tol, 1e-9)
-            else:
-                span = (w[1] - w[0]) if relation == "per_window" else 1.0
-                pred = g / span
-                fx = abs(float(f.value.si))
-                if pred <= 0 or fx <= 0:
-                    continue
-                err = abs(math.log(fx / pred))
-                ok = err <= rel_tol
-                score = err / max(rel_tol, 1e-9)
-            if ok and (best is None or score < best[0]):
+            score = abs(r) / max(deg_tol if additive else rel_tol, 1e-9)
+            if score <= 1.0 and (best is None or score < best[0]):
                 best = (score, link)
     return None if best is None else best[1]
 
 
-def follow_strings(link: Link, f: OptionSpec, driver: OptionSpec, driver_strings: list[str]) -> list[str] | None:
+def find_box_links(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> list[Link]:
+    """The dimension rows a box row follows: rows of other tasks of the same recording asking a
+    length, width or height of the same subject noun whose answer is an edge of the box (within
+    ``relative_tol``), one per edge, the closest match first."""
+    if f.kind != "box" or not isinstance(f.value, V.Box):
+        return []
+    rel_tol = float(params.get("relative_tol", 0.05))
+    found: dict[int, tuple[float, Link]] = {}
+    for d in drivers:
+        if d.obs.sequence != f.obs.sequence or d.task == f.task or d.obs.quantity not in DIMENSIONS \
+                or d.obs.subject_class != f.obs.subject_class or not isinstance(d.value, V.Scalar):
+            continue
+        for k in range(3):
+            link = Link(f.rid, d.rid, "box_edge", k, False)
+            r = link.residual(f, d.value)
+            if r is not None and abs(r) <= rel_tol and (k not in found or abs(r) < found[k][0]):
+                found[k] = (abs(r), link)
+    used: set = set()
+    out = []
+    for _, link in sorted(found.values(), key=lambda t: (t[0], t[1].edge)):
+        if link.driver not in used:  # one edge per dimension row
+            used.add(link.driver)
+            out.append(link)
+    return sorted(out, key=lambda lk: lk.edge)
+
+
+def follow_box(links: list[Link], f: OptionSpec, drivers: dict, own: list[str], decimals: dict) -> list[str] | None:
+    """A box row's candidates with the edges its dimension rows ask replaced: edge ``k`` of its
+    distractor ``j`` is the image of distractor ``j`` of the dimension row (``drivers``: rid -> (spec,
+    strings)), printed with the group's decimals of that edge (``decimals["d<k>"]``); the rest of each
+    box is its own draw ``own``. None when a driver is missing or a box cannot be printed."""
+    others = [s for s in own if s != f.detail]
+    if len(others) != 4:
+        return None
+    boxes = [V.parse(s) for s in others]
+    if any(b.R is None for b in boxes):
+        return None
+    dims = [list(b.lwh) for b in boxes]
+    for link in links:
+        if link.driver not in drivers:
+            return None
+        dspec, dstrings = drivers[link.driver]
+        dothers = [s for s in dstrings if s != dspec.detail]
+        if len(dothers) != 4:
+            return None
+        for j, s in enumerate(dothers):
+            x = link.image(f, dspec.value, V.parse(s))
+            if x is None or not x > 0:
+                return None
+            dims[j][link.edge] = round(x, int(decimals.get(f"d{link.edge}", 3)))
+    out = [V.format_box(b.center, d, b.R) for b, d in zip(boxes, dims)] + [f.detail]
+    return out if len(set(out)) == 5 else None
+
+
+def follow_strings(link: Link, f: OptionSpec, driver: OptionSpec, driver_strings: list[str],
+                   offsets=None) -> list[str] | None:
     """The follower's five candidate strings from the driver's five (its own answer in place of the
-    image of the driver's answer), or None when two coincide once printed or one is impossible."""
+    image of the driver's answer), distractor ``j`` moved by ``offsets[j]`` (default none), or None
+    when two coincide once printed or one is impossible."""
     others = [s for s in driver_strings if s != driver.detail]
     if len(others) != 4:
         return None
+    offsets = [0.0] * 4 if offsets is None else list(offsets)
     out = []
-    for s in others:
-        x = link.image(f, driver.value, V.parse(s))
+    for s, off in zip(others, offsets):
+        x = link.image(f, driver.value, V.parse(s), float(off))
         if x is None or not np.isfinite(x):
             return None
         if f.kind == "angle":
@@ -171,4 +229,30 @@ def follow_strings(link: Link, f: OptionSpec, driver: OptionSpec, driver_strings
     return out if len(set(out)) == 5 else None
 
 
-__all__ = ["FOLLOWS", "Link", "circular", "find_link", "follow_strings", "same_window", "turn_sum", "window"]
+def grid_offsets(step: float, rng, tries: int) -> list[np.ndarray]:
+    """Offsets for the four distractors on a grid of ``step`` (a little over the separation floor):
+    the five candidates take the five slots of the grid in a random order, each distractor moved by
+    its slot less the answer's slot. Where two driver candidates give one image, the candidates
+    around it are then evenly spaced with the answer in a uniformly random slot, so the candidate
+    nearest the image is the answer in one set in five (unless the answer is within half a step of
+    its image: no separated set can hide that)."""
+    out = []
+    for _ in range(tries):
+        slots = rng.permutation(5).astype(float)
+        out.append((slots[:4] - slots[4]) * step)
+    return out
+
+
+def residual_offsets(own: float, pool: list[float], rng, tries: int) -> list[np.ndarray]:
+    """Offsets for the four distractors when their exact images cannot all be used (two driver
+    candidates give one image): each distractor's distance from its image drawn from ``pool`` (the
+    residuals of the linked rows of other recordings), relative to the answer's own residual ``own``,
+    so the answer's distance from its image is one of five draws from one distribution."""
+    if len(pool) < 5:
+        return []
+    p = np.asarray(pool, float)
+    return [p[rng.integers(0, len(p), 4)] - own for _ in range(tries)]
+
+
+__all__ = ["FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings", "grid_offsets",
+           "residual_offsets", "same_window", "turn_sum", "window"]

@@ -76,6 +76,7 @@ class RowPlan:
     share_with: str | None = None  # another row whose candidate set this row reuses
     couple_with: str | None = None  # another row whose candidate set this row's is a translate of
     link: object | None = None  # a related row of another task whose candidate set this row's follows (.follow.Link)
+    box_links: list = field(default_factory=list)  # a box's dimension rows whose distractors its edges follow
     evidence: dict = field(default_factory=dict)
 
     @property

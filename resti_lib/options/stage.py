@@ -49,7 +49,7 @@ from .. import LETTERS
 from .. import values as V
 from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
-from .follow import FOLLOWS, find_link, follow_strings
+from .follow import FOLLOWS, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
 from .spec import (
@@ -174,7 +174,19 @@ class Stage:
             if p.share_with is not None or p.couple_with is not None or p.fixed or p.answer_is_fixed:
                 continue
             if p.spec.obs.quantity in FOLLOWS and drivers.get(p.spec.obs.sequence):
-                p.link = find_link(p.spec, drivers[p.spec.obs.sequence], follow)
+                if p.spec.kind == "box":
+                    p.box_links = find_box_links(p.spec, drivers[p.spec.obs.sequence], follow)
+                else:
+                    p.link = find_link(p.spec, drivers[p.spec.obs.sequence], follow)
+        # the residuals of the links (the follower's answer against what its driver's answer gives), per
+        # relation and source: drawn for distractors whose exact images coincide
+        self.residuals: dict[tuple, list[tuple[str, float]]] = defaultdict(list)
+        specs = {**{p.rid: p.spec for p in self.plans}, **{rid: sp for rid, (sp, _) in self.peers.items()}}
+        for p in self.plans:
+            if p.link is not None:
+                r = p.link.residual(p.spec, specs[p.link.driver].value)
+                if r is not None:
+                    self.residuals[(p.link.relation, p.spec.source)].append((p.spec.obs.sequence, r))
         depth: dict[str, int] = {}
 
         def depth_of(rid: str, seen: frozenset = frozenset()) -> int:
@@ -183,8 +195,9 @@ class Stage:
             p = self.by_id.get(rid)
             if p is None or rid in seen:  # a peer, or a loop (none by construction)
                 return 0
-            base = p.share_with or p.couple_with or (p.link.driver if p.link is not None else None)
-            depth[rid] = 0 if base is None else 1 + depth_of(base, seen | {rid})
+            bases = [b for b in (p.share_with or p.couple_with or (p.link.driver if p.link is not None else None),)
+                     if b is not None] + [lk.driver for lk in p.box_links]
+            depth[rid] = max((1 + depth_of(b, seen | {rid}) for b in bases), default=0)
             return depth[rid]
 
         self.order = sorted(range(len(self.plans)), key=lambda i: (depth_of(self.plans[i].rid), i))
@@ -283,6 +296,7 @@ class Stage:
                     failed[p.rid] = str(e)
                     continue
                 built[p.rid] = strings
+                strings = self._follow_box(p, strings)
             self.strings[p.rid] = strings
         log = self.adversarial_filter(built, failed)
         out, ev = [], []
@@ -308,22 +322,59 @@ class Stage:
     def _dependent(self, p: RowPlan, built: dict) -> list[str] | None:
         """A row's candidates when they follow another row's: the same set (shared) or its translate
         (coupled, when the translate meets the row's checks); None when the row draws its own."""
-        if p.share_with is not None and p.share_with in built:
+        if p.share_with is not None and p.share_with in built:  # its base's set as shipped (a box's followed edges)
             p.evidence.update({"shared_with": p.share_with})
-            return list(built[p.share_with])
+            return list(self.strings.get(p.share_with, built[p.share_with]))
         if p.couple_with is not None and p.couple_with in built:
-            coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p, built[p.couple_with])
+            coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p,
+                                                         self.strings.get(p.couple_with, built[p.couple_with]))
             if coupled is not None and self._coupled_ok(p, coupled):
                 p.evidence.update({"coupled_with": p.couple_with})
                 return coupled
         if p.link is not None:
-            drv = self._driver(p.link.driver)
-            followed = follow_strings(p.link, p.spec, drv[0], drv[1]) if drv is not None else None
-            if followed is not None and self._coupled_ok(p, followed):
-                p.evidence.update({"follows": p.link.driver, "relation": p.link.relation})
+            followed = self._follow(p)
+            if followed is not None:
                 return followed
             p.evidence.pop("follows", None)
         return None
+
+    def _follow(self, p: RowPlan) -> list[str] | None:
+        """The row's candidates as images of its driver's (:mod:`.follow`): exact images first; where
+        two coincide or a check fails, images moved by residuals drawn from the other recordings'
+        links (a bounded number of draws). None when no set meets the row's checks."""
+        drv = self._driver(p.link.driver)
+        if drv is None:
+            return None
+        dspec, dstrings = drv
+        own = p.link.residual(p.spec, dspec.value)
+        pool = [r for seq, r in self.residuals.get((p.link.relation, p.spec.source), [])
+                if seq != p.spec.obs.sequence]
+        rng = row_rng(self.seed, p.rid, "follow")
+        sep = self.params["separation"]
+        step = 1.1 * (float(sep["angle"]["min_sep_deg"]) if p.link.additive
+                      else math.log1p(float(sep["scalar"]["min_rel_gap"])))
+        tries = [("exact", None)] + [("grid", o) for o in grid_offsets(step, rng, 20)]
+        if own is not None:
+            tries += [("residual", o) for o in residual_offsets(own, pool, rng, 40)]
+        for how, offsets in tries:
+            followed = follow_strings(p.link, p.spec, dspec, dstrings, offsets)
+            if followed is not None and self._coupled_ok(p, followed):
+                p.evidence.update({"follows": p.link.driver, "relation": p.link.relation, "follow_offsets": how})
+                return followed
+        return None
+
+    def _follow_box(self, p: RowPlan, own: list[str]) -> list[str]:
+        """A box's own draw with the edges its dimension rows ask following their candidates
+        (:func:`.follow.follow_box`), when that set meets the row's checks; else its own draw."""
+        if not p.box_links:
+            return own
+        drivers = {lk.driver: d for lk in p.box_links if (d := self._driver(lk.driver)) is not None}
+        out = follow_box(p.box_links, p.spec, drivers, own, self.groups[p.group].info.get("decimals") or {})
+        if out is not None and self._coupled_ok(p, out):
+            p.evidence["follows_dimensions"] = [lk.driver for lk in p.box_links]
+            return out
+        p.evidence.pop("follows_dimensions", None)
+        return own
 
     def _base(self, rid: str) -> str:
         """The row whose draw a row's candidates come from (itself when it draws its own)."""
@@ -423,13 +474,18 @@ class Stage:
             except OptionError:
                 continue  # keeps the set it has (it meets every requirement)
             built[rid] = strings
-            self.strings[rid] = strings
+            self.strings[rid] = self._follow_box(p, strings)
             p.evidence["adversarial_redrawn"] = rnd
             changed.add(rid)
             n += 1
         for i in self.order:  # rows that follow a redrawn row follow it again
             q = self.plans[i]
-            if q.rid in failed or q.rid in changed or q.rid in built:
+            if q.rid in failed or q.rid in changed:
+                continue
+            if q.rid in built:  # a box whose dimension rows were drawn again
+                if {lk.driver for lk in q.box_links} & changed:
+                    self.strings[q.rid] = self._follow_box(q, built[q.rid])
+                    changed.add(q.rid)
                 continue
             if {q.share_with, q.couple_with, q.evidence.get("follows")} & changed:
                 again = self._dependent(q, built)

@@ -22,6 +22,12 @@ against it:
 * ``repeated_answer`` — rows of one source sequence that ask the same thing and share the answer
   (the camera videos of one Waymo segment asking the ego heading change): options can make them
   share one candidate set, but a reader of one row's answer key knows the others';
+* ``relation_floor`` — a row whose answer a related row of its recording gives (a heading change
+  the turn sum of a trajectory description over its window, a dimension a box edge: see
+  :mod:`resti_lib.options.follow`) where every candidate of that row predicts the answer to within
+  half the separation floor: any other candidate is then at least half a floor from every
+  prediction and the answer is the one nearest (a car driving straight: every trajectory candidate
+  turns 0 degrees, and the heading change is within half a degree of 0);
 * ``label_prior`` — the most frequent label of a categorical task;
 * ``metadata`` — an answer that follows from the video name (the Waymo camera mount names the
   Spatial Relation label): the accuracy of the best camera -> label rule, leave one out.
@@ -188,6 +194,44 @@ def _label_leaks(sp: list, n: int) -> list[Leak]:
     return out
 
 
+def relation_forced(records: list[dict], specs: list, params: dict) -> dict[int, str]:
+    """Rows whose answer every candidate of a related row of the same recording predicts to within
+    half the row's separation floor (``relation_floor``, module docstring): index -> detail."""
+    from .follow import FOLLOWS, find_link
+
+    drivers: dict[str, list[int]] = defaultdict(list)
+    for i, s in enumerate(specs):
+        if s is not None and s.kind in ("box", "trajectory", "scalar"):
+            drivers[s.obs.sequence].append(i)
+    out = {}
+    for i, f in enumerate(specs):
+        if f is None or f.kind not in ("scalar", "angle") or f.obs.quantity not in FOLLOWS:
+            continue
+        sib = [specs[j] for j in drivers.get(f.obs.sequence, []) if j != i]
+        link = find_link(f, sib, params.get("follow") or {}) if sib else None
+        if link is None:
+            continue
+        j = next(k for k in drivers[f.obs.sequence] if specs[k].rid == link.driver)
+        cands = records[j].get("Candidates") if isinstance(records[j].get("Candidates"), dict) else {}
+        r = link.residual(f, specs[j].value)
+        try:  # what each candidate of the related row predicts (the answer's own residual taken off)
+            images = [link.image(f, specs[j].value, V.parse(t), -r) for t in cands.values()] if r is not None else []
+        except InputError:
+            continue
+        if not images or any(x is None for x in images):
+            continue
+        a = float(f.value.value)
+        if f.kind == "angle":
+            half = 0.5 * angle_gap(f, params)
+            far = max(abs((a - x + 180.0) % 360.0 - 180.0) for x in images)
+        else:
+            half = 0.5 * max(scalar_gap(f, params, a), params["separation"]["scalar"]["min_rel_gap"] * a)
+            far = max(abs(a - x) for x in images)
+        if far < half:
+            out[i] = f"{link.relation} of {link.driver}: every candidate within {far:.3g} of the answer"
+    return out
+
+
 def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
     """One row per (task, source, leak) that options cannot remove (see the module docstring), under
     the answer interface the options are built with."""
@@ -196,6 +240,7 @@ def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
     cells: dict[tuple, list[int]] = defaultdict(list)
     for i, r in enumerate(records):
         cells[(str(r.get("Task")), str(r.get("Source")))].append(i)
+    forced = relation_forced(records, specs, params)
     out = []
     for (task, source), idx in sorted(cells.items()):
         sp = [specs[i] for i in idx if specs[i] is not None]
@@ -207,6 +252,12 @@ def structural_leaks(records: list[dict], iface: Interface) -> pd.DataFrame:
         found += _repeat_leaks(sp, n)
         found += _pose_leaks(sp, n) if kind == "pose" else []
         found += _label_leaks(sp, n) if kind == "label" else []
+        hit = [i for i in idx if i in forced]
+        if hit:
+            found.append(("relation_floor", len(hit), 1.0,
+                          f"{len(hit)} of {n} rows: a related row's every candidate predicts the answer to within half "
+                          f"the separation floor (e.g. {forced[hit[0]]})",
+                          "none by this row's options; the evaluation subset leaves them out"))
         for leak, affected, acc, detail, remedy in found:
             out.append({"task": task, "source": source, "leak": leak, "n_rows": n, "rows_affected": int(affected),
                         "accuracy_on_affected": round(float(acc), 4), "detail": detail, "remedy": remedy})
@@ -364,6 +415,14 @@ def _drop_floor_forced(c: _Selection) -> None:
                     drop[rid[i]] = "floor_forced"
 
 
+def _drop_relation_forced(c: _Selection) -> None:
+    """Rows whose answer every candidate of a related row predicts to within half the floor."""
+    kept = [i for i in range(len(c.records)) if c.rid[i] not in c.drop]
+    forced = relation_forced([c.records[i] for i in kept], [c.specs[i] for i in kept], c.iface.options)
+    for k in forced:
+        c.drop[c.rid[kept[k]]] = "relation_floor"
+
+
 def _cap_zero_answers(c: _Selection) -> None:
     """Exact-zero answers at most one in five of their group."""
     specs, rid, drop, rng = c.specs, c.rid, c.drop, c.rng
@@ -384,7 +443,7 @@ def _cap_zero_answers(c: _Selection) -> None:
 
 #: The steps of :func:`evaluation_subset`, in order (each sees the rows the earlier ones kept).
 SUBSET_STEPS = (_drop_metadata, _drop_converse_pairs, _balance_labels, _drop_repeated_answers, _drop_pose_reveals,
-                _drop_keyed_reveals, _drop_floor_forced, _cap_zero_answers)
+                _drop_keyed_reveals, _drop_floor_forced, _drop_relation_forced, _cap_zero_answers)
 
 
 def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame | None = None, *, seed: int = 0
@@ -409,7 +468,8 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
                  "video, is left out; of rows whose answer a sibling's answer gives through physics (a keyed "
                  "relation attack reveals it), one per recording and relation is kept; angles inside a window "
                  "narrower than the separation floor that holds more than a fifth of their cell (forced by the "
-                 "floor) are left out; exact-zero answers are kept at "
+                 "floor) are left out, and so are rows whose answer every candidate of a related row predicts to "
+                 "within half the floor; exact-zero answers are kept at "
                  "most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),

@@ -171,7 +171,6 @@ class Dimensional(Task):
     notebook = "03_dimensional"
     order = 2
     answer_kind = "scalar"
-    follows = ("3D Video Grounding",)
     quantity = "distance"
     figures = {
         "legacy_vs_source": ("Dimensional Measurement: legacy against source value per source (accepted rows; dashed: equal)."),

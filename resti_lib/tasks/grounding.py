@@ -443,6 +443,7 @@ class Grounding(Task):
     notebook = "01_grounding"
     order = 1
     answer_kind = "box"
+    follows = ("Dimensional Measurement",)
     rule_key = "centre_abs_tol_m"
     quantity = "box"
     figures = {
