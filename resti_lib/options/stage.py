@@ -170,8 +170,8 @@ class Stage:
         for spec, _ in self.peers.values():
             if spec.obs.quantity in DRIVER_QUANTITIES:
                 drivers[spec.obs.sequence].append(spec)
-        for p in self.plans:
-            if p.share_with is not None or p.couple_with is not None or p.fixed or p.answer_is_fixed:
+        for p in self.plans:  # a coupled row follows its driver where its translate fails the row's checks
+            if p.share_with is not None or p.fixed or p.answer_is_fixed:
                 continue
             if p.spec.obs.quantity in FOLLOWS and drivers.get(p.spec.obs.sequence):
                 if p.spec.kind == "box":
@@ -195,7 +195,7 @@ class Stage:
             p = self.by_id.get(rid)
             if p is None or rid in seen:  # a peer, or a loop (none by construction)
                 return 0
-            bases = [b for b in (p.share_with or p.couple_with or (p.link.driver if p.link is not None else None),)
+            bases = [b for b in (p.share_with, p.couple_with, p.link.driver if p.link is not None else None)
                      if b is not None] + [lk.driver for lk in p.box_links]
             depth[rid] = max((1 + depth_of(b, seen | {rid}) for b in bases), default=0)
             return depth[rid]
@@ -322,12 +322,13 @@ class Stage:
     def _dependent(self, p: RowPlan, built: dict) -> list[str] | None:
         """A row's candidates when they follow another row's: the same set (shared) or its translate
         (coupled, when the translate meets the row's checks); None when the row draws its own."""
-        if p.share_with is not None and p.share_with in built:  # its base's set as shipped (a box's followed edges)
+        # the base's set as shipped (drawn, or following another row: self.strings holds both)
+        if p.share_with is not None and p.share_with in self.strings:
             p.evidence.update({"shared_with": p.share_with})
-            return list(self.strings.get(p.share_with, built[p.share_with]))
-        if p.couple_with is not None and p.couple_with in built:
+            return list(self.strings[p.share_with])
+        if p.couple_with is not None and p.couple_with in self.strings:
             coupled = builder_for(p.spec.kind).translate(self, self.by_id[p.couple_with], p,
-                                                         self.strings.get(p.couple_with, built[p.couple_with]))
+                                                         self.strings[p.couple_with])
             if coupled is not None and self._coupled_ok(p, coupled):
                 p.evidence.update({"coupled_with": p.couple_with})
                 return coupled
@@ -378,10 +379,10 @@ class Stage:
 
     def _base(self, rid: str) -> str:
         """The row whose draw a row's candidates come from (itself when it draws its own)."""
-        p = self.by_id[rid]
-        for b in (p.share_with, p.couple_with, p.evidence.get("follows")):
+        ev = self.by_id[rid].evidence  # what the row's set was made from (a peer is never drawn here)
+        for b in (ev.get("shared_with"), ev.get("coupled_with"), ev.get("follows")):
             if b is not None and b in self.by_id and b != rid:
-                return self._base(b) if b not in self.peers else rid
+                return self._base(b)
         return rid
 
     # -------------------------------------------------------------------- adversarial filtering
