@@ -405,6 +405,8 @@ class Stage:
         names = list(af.get("attacks") or [])
         share = float(af.get("max_redrawn_share", 0.5))
         log: list[dict] = []
+        checked: dict[str, pd.DataFrame] = {}  # the last picks of each task
+        dirty: set | None = None  # tasks with rows drawn again since their last check (None: all)
         for rnd in range(rounds):
             rows = []
             for p, r in zip(self.plans, self.records):
@@ -417,7 +419,10 @@ class Stage:
             by_task: dict[str, list[dict]] = defaultdict(list)
             for r in rows:  # one task at a time: the cells are per task, and memory stays that of one task
                 by_task[str(r.get("Task"))].append(r)
-            frames = [run_picks(parse_rows(rs), names, records=rs, iface=self.iface) for _, rs in sorted(by_task.items())]
+            for task, rs in sorted(by_task.items()):  # a task none of whose rows changed keeps its picks
+                if dirty is None or task in dirty or task not in checked:
+                    checked[task] = run_picks(parse_rows(rs), names, records=rs, iface=self.iface)
+            frames = [checked[task] for task in sorted(by_task)]
             picks = pd.concat([f for f in frames if len(f)], ignore_index=True) if any(len(f) for f in frames) \
                 else pd.DataFrame(columns=["pick"])
             picks = picks[picks["pick"].notna()]
@@ -448,7 +453,8 @@ class Stage:
                 record.update({"identified": len(identified), "redrawn": 0, "stopped": "max_redrawn_share"})
                 log.append(record)
                 break
-            redrawn = self._redraw(identified, built, failed, rnd + 1)
+            redrawn, changed = self._redraw(identified, built, failed, rnd + 1)
+            dirty = {self.by_id[rid].spec.task for rid in changed}
             record.update({"identified": len(identified), "redrawn": redrawn})
             log.append(record)
             if not redrawn:
@@ -456,9 +462,10 @@ class Stage:
                 break
         return log
 
-    def _redraw(self, rids: list[str], built: dict, failed: dict, rnd: int) -> int:
+    def _redraw(self, rids: list[str], built: dict, failed: dict, rnd: int) -> tuple[int, set]:
         """Draw the named rows' distractors again (their base row when they follow one), then the rows
-        that follow those (in build order). Returns how many rows were drawn again."""
+        that follow those (in build order). Returns how many rows were drawn again, and every row whose
+        set changed."""
         bases = []
         for rid in rids:
             if rid not in self.by_id:
@@ -493,7 +500,7 @@ class Stage:
                 if again is not None:
                     self.strings[q.rid] = again
                     changed.add(q.rid)
-        return n
+        return n, changed
 
     def _coupled_ok(self, p: RowPlan, strings: list[str]) -> bool:
         """A translated set meets the row's own requirements (the checks ``resti verify`` runs)."""
