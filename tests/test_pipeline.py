@@ -121,10 +121,12 @@ def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run,
     edited.write_text(yaml.safe_dump(main_params(miniworld, inc, stage_params={"03_dimensional": dim})))
     r = run_cli(["run", "--params", str(edited)])
     assert r.returncode == 0, r.stderr[-3000:]
-    assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
+    # 01: a box's candidate edges follow the dimensions asked of its subject (Task.follows)
+    assert _ran(r.stdout) == {"03_dimensional", "01_grounding", "99_release_report"}
 
-    # the release changed accordingly: Dimensional answers print more decimals, every other task's
-    # rows are the session run's rows
+    # the release changed accordingly: Dimensional answers print more decimals, Grounding answers are
+    # the same (their candidates may follow the new dimension candidates), every other task's rows are
+    # the session run's rows
     old, new = _rows(main_run.out / "release" / "resti.jsonl"), _rows(inc / "release" / "resti.jsonl")
     assert old.keys() == new.keys()
     dims = [k for k, r in new.items() if r["Task"] == "Dimensional Measurement"]
@@ -133,17 +135,19 @@ def test_one_task_params_edit_reruns_it_and_downstream_like_a_full_run(main_run,
         assert V.parse(new[k]["Answer Detail"]).decimals >= 3
         assert V.parse(old[k]["Answer Detail"]).decimals < V.parse(new[k]["Answer Detail"]).decimals
     for k, r in new.items():
-        if r["Task"] != "Dimensional Measurement":
+        if r["Task"] == "3D Video Grounding":
+            assert (r["Answer Detail"], r["Question"]) == (old[k]["Answer Detail"], old[k]["Question"]), k
+        elif r["Task"] != "Dimensional Measurement":
             assert r == old[k], k
     assert (inc / "report" / "index.html").read_bytes() != (main_run.out / "report" / "index.html").read_bytes()
 
-    # the edit undone: the same two stages rerun and every release file, table and the index are the
+    # the edit undone: the same three stages rerun and every release file, table and the index are the
     # bytes of the session's full run with these params
     undone = tmp_path / "undone.yaml"
     undone.write_text(yaml.safe_dump(main_params(miniworld, inc)))
     r = run_cli(["run", "--params", str(undone)])
     assert r.returncode == 0, r.stderr[-3000:]
-    assert _ran(r.stdout) == {"03_dimensional", "99_release_report"}
+    assert _ran(r.stdout) == {"03_dimensional", "01_grounding", "99_release_report"}
     full = main_run.out
     for name in RELEASE_FILES:
         assert (inc / "release" / name).read_bytes() == (full / "release" / name).read_bytes(), name
