@@ -2,8 +2,9 @@
 
 - cold: no outputs at all (mini-world generation + every stage);
 - warm: nothing changed (every stage up to date; target under 5 s);
-- one task changed: ``decimals`` of params/dimensional.yaml edited, so that task, the release and
-  the report rerun (target under 25 s on 2 cores).
+- one task changed: ``decimals`` of params/dimensional.yaml edited, so that task, the task whose
+  candidate sets follow it (Grounding: ``Task.follows``), the release and the report rerun (target
+  under 25 s on 2 cores).
 
 The floor is the sum of the kernel start-ups of the stages that ran (one empty notebook through
 papermill, median of three, times the number of stages). Everything happens in a temporary copy of
