@@ -140,10 +140,13 @@ def _stage_help() -> str:
 
 
 def _attack_help() -> str:
-    """The registered attacks, for ``resti attack --help`` (imports the attack registry)."""
+    """The registered families and attacks, for ``resti attack --help`` (imports the attack registry)."""
     from ..options.attacks import ATTACKS
+    from ..options.attacks.registry import FAMILIES, KEYED_FAMILIES
 
-    return "attacks: " + ", ".join(sorted(ATTACKS))
+    blind = [f for f in FAMILIES if f not in KEYED_FAMILIES]
+    return (f"families: {', '.join(blind)} (the blind suite); {', '.join(KEYED_FAMILIES)} (answer-key readers, "
+            f"named explicitly). attacks: " + ", ".join(sorted(ATTACKS)))
 
 
 def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
@@ -172,8 +175,7 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
                     help="format on stdout (md: the headline, then the table)")
     at.add_argument("--alpha", type=float, default=0.05, help="Holm family-wise error rate over every table row")
     at.add_argument("--families", nargs="*", default=None,
-                    help="attack families (default: all): option format typicality question cross_row "
-                    "metadata learned_option learned_question")
+                    help="attack families (default: every blind family; listed below)")
     at.add_argument("--fast", action="store_true", help="leave the learned families out")
     at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all of the families; "
                     "listed below)")

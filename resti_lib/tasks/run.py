@@ -258,16 +258,17 @@ def run_rows(task: str | Task, mine: pd.DataFrame, params: dict, *, problems: li
     _answer_layer(outcomes, mine)
     iface = Interface(load_option_params(), {t.name: t.interface(params)})
     out_dir = paths.resolve(params.get("output_dir") or "outputs") / "tasks" / slug(t.name)
-    peers, peer_iface = followed_rows(t, out_dir.parent)
+    peers, peer_iface = followed_rows(t, out_dir.parent, iface.options)
     result = finalize(outcomes, mine, seed=int(params["seed"]), iface=iface, peers=peers, peer_iface=peer_iface)
     write_task_outputs(result, out_dir)
     return TaskRun(t.name, sorted(outcomes, key=lambda o: o.row), result, out_dir, mine)
 
 
-def followed_rows(t: Task, tasks_dir: Path) -> tuple[list[dict], Interface | None]:
+def followed_rows(t: Task, tasks_dir: Path, options: dict) -> tuple[list[dict], Interface | None]:
     """The accepted rows of the tasks ``t`` follows (``Task.follows``), as their stages of this run
     wrote them to ``tasks_dir/<slug>/accepted.jsonl`` (the main job runs those stages first), and the
-    answer interface that reads them. A task run alone, without them, draws its own candidate sets."""
+    answer interface that reads them (under the run's option params ``options``). A task run alone,
+    without them, draws its own candidate sets."""
     from ..io.files import read_jsonl
 
     rows, tasks = [], {}
@@ -277,7 +278,7 @@ def followed_rows(t: Task, tasks_dir: Path) -> tuple[list[dict], Interface | Non
             d = task_for(name)
             rows += read_jsonl(f)
             tasks[name] = d.interface(d.settings({}))
-    return rows, (Interface(load_option_params(), tasks) if tasks else None)
+    return rows, (Interface(options, tasks) if tasks else None)
 
 
 def run_task(task: str, params: dict) -> TaskRun:

@@ -79,34 +79,39 @@ def _circ(p: ParsedRow):
     return top({k: -abs(np.angle(np.exp(1j * (a - m)))) for k, a in rad.items()})
 
 
-@attack("field_median", ["box", "pose"], "per-field median vote over every printed field")
-def _field_median(p: ParsedRow):
+def _field_votes(p: ParsedRow, winners) -> frozenset | None:
+    """One vote per printed field for the candidates ``winners(column)`` names (indices)."""
     keys, X = field_matrix(p)
     if X is None:
         return None
     votes = Counter({k: 0 for k in keys})
     for j in range(X.shape[1]):
-        col = X[:, j]
-        hit = np.flatnonzero(np.abs(col - np.median(col)) <= TIE)
-        if len(hit) == 1:
-            votes[keys[hit[0]]] += 1
+        for i in winners(X[:, j]):
+            votes[keys[i]] += 1
     return top(dict(votes))
+
+
+def _median_winner(col: np.ndarray) -> list[int]:
+    hit = np.flatnonzero(np.abs(col - np.median(col)) <= TIE)
+    return [int(hit[0])] if len(hit) == 1 else []
+
+
+def _modal_winners(col: np.ndarray) -> list[int]:
+    c = Counter(np.round(col, 9))
+    val, n = c.most_common(1)[0]
+    if n < 2 or list(c.values()).count(n) != 1:
+        return []
+    return [i for i in range(len(col)) if round(col[i], 9) == val]
+
+
+@attack("field_median", ["box", "pose"], "per-field median vote over every printed field")
+def _field_median(p: ParsedRow):
+    return _field_votes(p, _median_winner)
 
 
 @attack("field_majority", ["box", "pose"], "per-field modal value vote (values shared by >= 2 candidates)")
 def _field_majority(p: ParsedRow):
-    keys, X = field_matrix(p)
-    if X is None:
-        return None
-    votes = Counter({k: 0 for k in keys})
-    for j in range(X.shape[1]):
-        c = Counter(np.round(X[:, j], 9))
-        val, n = c.most_common(1)[0]
-        if n >= 2 and list(c.values()).count(n) == 1:
-            for i in range(len(keys)):
-                if round(X[i, j], 9) == val:
-                    votes[keys[i]] += 1
-    return top(dict(votes))
+    return _field_votes(p, _modal_winners)
 
 
 def _group_attack(group: str, how: str):
