@@ -194,3 +194,53 @@ def pytest_collection_modifyitems(config, items):
         if "main_run" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.xdist_group("main_run"))
+
+
+class EditedRun:
+    """:func:`dimensional_edit`: ``edited`` the outputs right after the edited run (a copy), ``inc`` the
+    same folder after the edit was undone; the two runs' stdout."""
+
+    def __init__(self, base: Path, record: dict):
+        self.base, self.edited, self.inc = base, base / "edited", base / "incremental"
+        self.edit_params = base / "dimensional.yaml"
+        self.edit_stdout, self.undo_stdout = record["edit_stdout"], record["undo_stdout"]
+
+
+#: the one params edit the main-job tests make: Dimensional answers print one more decimal, and the
+#: task's tolerance (also its option separation floor) widens until some rows have no valid options
+DIMENSIONAL_EDIT = ((r"^decimals: 2 ", "decimals: 3 "), (r"^rule: \{abs_tol: 0\.002,", "rule: {abs_tol: 0.3,"))
+
+
+@pytest.fixture(scope="session")
+def dimensional_edit(main_run, miniworld, tmp_path_factory) -> EditedRun:
+    """One task's params edited on a copy of the session's main run, rerun, then the edit undone and rerun
+    (once per session; the pipeline, what-changed and browser tests read it): every params-edit
+    check reads the same two runs instead of each making its own."""
+    import json
+    import re
+    import shutil
+
+    import yaml
+
+    with _once_per_session(tmp_path_factory, "dimensional_edit") as (base, make):
+        record = base / "runs.json"
+        if make:
+            base.mkdir(parents=True, exist_ok=True)
+            text = (paths.PARAMS / "dimensional.yaml").read_text()
+            for pattern, new in DIMENSIONAL_EDIT:
+                assert re.search(pattern, text, re.MULTILINE), pattern
+                text = re.sub(pattern, new, text, flags=re.MULTILINE)
+            (base / "dimensional.yaml").write_text(text)
+            inc = base / "incremental"
+            shutil.copytree(main_run.out, inc, symlinks=True)
+            (base / "edited.yaml").write_text(yaml.safe_dump(
+                main_params(miniworld, inc, stage_params={"03_dimensional": base / "dimensional.yaml"})))
+            edit = run_cli(["run", "--params", str(base / "edited.yaml")])
+            assert edit.returncode == 0, edit.stderr[-3000:]
+            shutil.copytree(inc, base / "edited", symlinks=True)
+            (base / "undone.yaml").write_text(yaml.safe_dump(main_params(miniworld, inc)))
+            undo = run_cli(["run", "--params", str(base / "undone.yaml")])
+            assert undo.returncode == 0, undo.stderr[-3000:]
+            record.write_text(json.dumps({"edit_stdout": edit.stdout, "undo_stdout": undo.stdout}))
+        data = json.loads(record.read_text())
+    return EditedRun(base, data)

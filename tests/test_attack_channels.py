@@ -312,11 +312,15 @@ def test_v5_reoptioned_population_attacker_as_strong_as_outside(resti_v5_dir, tm
     """The outside review's gradient boosting over population-relative features got 42 of 75 on
     re-optioned v5 Omni6DPose Speed & Acceleration (seed 0) where the earlier learned attacker got 29.
     The options of this version differ from those rows; on the same rows, the population attacker is
-    significant and stronger than the earlier learned attacker by the same margin or more."""
+    significant and stronger than the earlier learned attacker by the same margin or more.
+
+    The rows are those the review attacked: drawn around an anchor (``model.lattice.below_units: 0``;
+    coarse speeds now take the quantile lattice, whose draw this attacker no longer separates) and
+    before the adversarial filter, which checks with this attacker."""
     from resti_lib.release.reoption import reoption_release
 
-    # the comparison is with the draw before the adversarial filter, which checks with this attacker
-    res = reoption_release(resti_v5_dir, tmp_path / "reopt", seed=0, options={"adversarial": {"rounds": 0}})
+    res = reoption_release(resti_v5_dir, tmp_path / "reopt", seed=0,
+                           options={"adversarial": {"rounds": 0}, "model": {"lattice": {"below_units": 0, "width": 0.5}}})
     rows = [json.loads(line) for line in (res.out_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
     t = attack_table(rows, iface=IFACE, families=("learned_option", "learned_question"),
                      attacks=["learned_population", "learned_blind"])

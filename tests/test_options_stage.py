@@ -83,6 +83,77 @@ def test_displacements_conditioned_on_the_window_defeat_the_implied_rate():
         assert all(b - a >= 0.01 - 1e-9 for a, b in zip(vals, vals[1:]))
 
 
+def test_lattice_draw_is_exchangeable_and_spread():
+    """Given the answer's score, the quantile lattice's other four are such that, over many answers, the
+    answer's rank within its set is uniform and every candidate is a standard normal draw; neighbours are
+    at least (1 - width)/5 apart in probability. A lattice at fixed offsets from the answer fails."""
+    from scipy.stats import chisquare, kstest
+
+    from resti_lib.options.population import lattice_scores
+
+    rng = np.random.default_rng(0)
+    z_a = rng.standard_normal((20000, 1))
+    z = lattice_scores(z_a, 4, 0.5, rng)[:, :, 0]
+    alls = np.column_stack([z_a, z])
+    rank = (alls < z_a).sum(axis=1)  # the answer's rank among the five by value
+    assert chisquare(np.bincount(rank, minlength=5)).pvalue > 1e-3
+    assert kstest(z.ravel(), "norm").pvalue > 1e-3
+    q = np.sort(norm.cdf(alls), axis=1)
+    gaps = np.diff(np.column_stack([q, q[:, :1] + 1.0]), axis=1)  # around the circle of quantiles
+    assert gaps.min() >= 0.1 - 1e-9
+    # control: candidates at fixed quantile steps above the answer (wrapped) rank it first far too often
+    naive = np.column_stack([z_a, norm.ppf((norm.cdf(z_a) + np.arange(1, 5) * 0.05) % 1.0)])
+    assert chisquare(np.bincount((naive < z_a).sum(axis=1), minlength=5)).pvalue < 1e-6
+
+
+def _coarse_speed_rows(n=300, seed=0):
+    """Object speeds printed at 0.01 m/s with a median of 9 printed units (the coarse Omni6DPose case):
+    the true distribution of printed units is known (``probs``)."""
+    rng = np.random.default_rng(seed)
+    units = np.arange(1, 31)
+    w = np.exp(-0.5 * ((np.log(units) - math.log(9.0)) / 0.45) ** 2) / units
+    probs = w / w.sum()
+    rows = []
+    for i in range(n):
+        u = int(rng.choice(units, p=probs))
+        # windows to the hundredth of a second: rows asking one window with one answer share a set, rarely here
+        t0 = round(float(rng.uniform(0.0, 20.0)), 2)
+        t1 = round(t0 + float(rng.uniform(2.0, 15.0)), 2)
+        q = (f"What is the magnitude of the camera's average velocity (displacement divided by elapsed time) "
+             f"between t={t0:g} s and t={t1:g} s? (unit: m/s)")
+        rows.append(_row(i, "Speed & Acceleration", "Omni6DPose", q, V.format_scalar(u / 100.0, "m/s", 2),
+                         video=f"{i:06d}.mp4", t0=t0, t1=t1))
+    return rows, dict(zip(units.tolist(), probs.tolist()))
+
+
+def test_coarse_speeds_take_the_lattice_and_the_most_typical_candidate_is_at_chance():
+    rows, probs = _coarse_speed_rows()
+    out, ev, _ = build_options(iface=IFACE, records=rows, seed=0)
+
+    def typical(rs):  # the candidate most probable under the true distribution of printed units
+        hits = 0.0
+        for r in rs:
+            p = {L: probs.get(round(V.parse(s).value * 100), 0.0) for L, s in r["Candidates"].items()}
+            top = [L for L, x in p.items() if x == max(p.values())]
+            hits += (r["Answer"] in top) / len(top)
+        return hits / len(rs)
+
+    acc = typical(out)
+    assert binomtest(round(acc * len(out)), len(out), 0.2, alternative="greater").pvalue > 0.01, acc
+    # the same reader against distractors spread wider than the answers (four other printed values drawn
+    # uniformly over the range) finds the answer well above chance: the test can fail
+    rng = np.random.default_rng(1)
+    wide = []
+    for r in rows:
+        u = round(V.parse(r["Answer Detail"]).value * 100)
+        others = rng.choice([x for x in range(1, 31) if x != u], 4, replace=False)
+        c = [V.format_scalar(x / 100.0, "m/s", 2) for x in [u, *others]]
+        wide.append({**r, "Candidates": dict(zip(LETTERS, c)), "Answer": "A"})
+    assert typical(wide) > 0.4
+    drawn = ev[ev["shared_with"].isna()] if "shared_with" in ev else ev  # a shared set was drawn for another row
+    assert (drawn["draw"] == "lattice").all()  # a median answer of 9 printed units: coarse
+
+
 def test_orientation_options_at_least_one_degree_apart():
     rng = np.random.default_rng(2)
     q = ("Between source pose timestamps 0.000000 and 19.800000 seconds, what is the signed horizontal "

@@ -109,26 +109,9 @@ def test_examples_page_opens_offline_with_every_task(main_run, browser):
         assert task in info["text"], task
 
 
-def test_what_changed_section_when_params_change(main_run, miniworld, browser, tmp_path):
+def test_what_changed_section_when_params_change(dimensional_edit, browser):
     """One task's tolerance edited: the report opens with the What changed section, offline, sound."""
-    import re
-    import shutil
-
-    import yaml
-
-    from resti_lib import paths
-    from tests.conftest import main_params, run_cli
-
-    text = (paths.PARAMS / "dimensional.yaml").read_text()
-    dim = tmp_path / "dimensional.yaml"
-    dim.write_text(re.sub(r"^rule: \{abs_tol: 0\.002,", "rule: {abs_tol: 0.3,", text, flags=re.MULTILINE))
-    out = tmp_path / "outputs"
-    shutil.copytree(main_run.out, out)
-    params = tmp_path / "edited.yaml"
-    params.write_text(yaml.safe_dump(main_params(miniworld, out, stage_params={"03_dimensional": dim})))
-    r = run_cli(["run", "--params", str(params)])
-    assert r.returncode == 0, r.stderr[-3000:]
-    index = out / "report" / "index.html"
+    index = dimensional_edit.edited / "report" / "index.html"
     info = _inspect(browser, index)
     _assert_page_sound(info, index)
     assert info["ids"].index("changes") < info["ids"].index("headline")  # first, above the headline

@@ -4,13 +4,10 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 
 import pandas as pd
 import pytest
-import yaml
 
-from resti_lib import paths
 from resti_lib.report.changes import (
     BASELINE,
     SUMMARY,
@@ -20,7 +17,6 @@ from resti_lib.report.changes import (
     rows_diff,
     update,
 )
-from tests.conftest import main_params, run_cli
 from tests.helpers import row, write_release
 
 DIM = "Dimensional Measurement"
@@ -107,17 +103,9 @@ def test_update_baseline_change_and_revert(tmp_path):
 
 
 @pytest.mark.notebook
-def test_tolerance_edit_names_param_rows_and_warning_and_revert_restores_bytes(main_run, miniworld, tmp_path):
-    text = (paths.PARAMS / "dimensional.yaml").read_text()
-    assert re.search(r"^rule: \{abs_tol: 0\.002, rel_tol: 0\.002\}", text, re.MULTILINE)
-    dim = tmp_path / "dimensional.yaml"
-    dim.write_text(re.sub(r"^rule: \{abs_tol: 0\.002,", "rule: {abs_tol: 0.3,", text, flags=re.MULTILINE))
-    inc = tmp_path / "incremental"
-    shutil.copytree(main_run.out, inc)
-    edited = tmp_path / "edited.yaml"
-    edited.write_text(yaml.safe_dump(main_params(miniworld, inc, stage_params={"03_dimensional": dim})))
-    r = run_cli(["run", "--params", str(edited)])
-    assert r.returncode == 0, r.stderr[-3000:]
+def test_tolerance_edit_names_param_rows_and_warning_and_revert_restores_bytes(main_run, dimensional_edit):
+    ed = dimensional_edit  # decimals 2 -> 3 and rule.abs_tol 0.002 -> 0.3 in params/dimensional.yaml
+    assert re.search(r"^rule: \{abs_tol: 0\.3,", ed.edit_params.read_text(), re.MULTILINE)
 
     # the changed rows, counted here from the two releases by key
     def rows(folder):
@@ -127,26 +115,26 @@ def test_tolerance_edit_names_param_rows_and_warning_and_revert_restores_bytes(m
                .read_text().splitlines()}
         return acc, exc
 
-    (a0, e0), (a1, e1) = rows(main_run.out), rows(inc)
+    (a0, e0), (a1, e1) = rows(main_run.out), rows(ed.edited)
     newly = sorted(k for k, e in e1.items() if k not in e0 and "no_valid_options" in e["reason_codes"])
     assert newly, "widening the Dimensional tolerance (its separation floor) leaves rows without valid options"
     changed = {k for k in a0 if k not in a1 or a0[k] != a1[k]}
-    index = (inc / "report" / "index.html").read_text(encoding="utf-8")
+    index = (ed.edited / "report" / "index.html").read_text(encoding="utf-8")
     section = index.split('<section id="changes">', 1)[1].split("</section>", 1)[0]
     assert "What changed" in section and "rule.abs_tol" in section and "03_dimensional" in section
+    assert "decimals" in section
     assert f"<b>{len(changed)}</b> rows changed" in section
     for k in newly:
         assert k in section  # named in the warning
     assert "no_valid_options" in section and 'class="infeasible"' in section
-    assert "what changed against the baseline run: rule.abs_tol 0.002 -&gt; 0.3".replace("-&gt;", "->") in r.stdout
-    table = pd.read_csv(inc / "report" / "what_changed_rows.csv", dtype=str, keep_default_na=False)
+    line = next(x for x in ed.edit_stdout.splitlines() if "what changed against the baseline run:" in x)
+    assert "rule.abs_tol 0.002 -> 0.3" in line and "decimals 2 -> 3" in line, line
+    assert f"{len(changed)} rows changed" in line, line
+    table = pd.read_csv(ed.edited / "report" / "what_changed_rows.csv", dtype=str, keep_default_na=False)
     assert set(table["key"]) >= changed | set(newly)
 
     # reverted: the baseline's bytes, and no What changed files
-    undone = tmp_path / "undone.yaml"
-    undone.write_text(yaml.safe_dump(main_params(miniworld, inc)))
-    r = run_cli(["run", "--params", str(undone)])
-    assert r.returncode == 0, r.stderr[-3000:]
+    inc = ed.inc
     assert (inc / "report" / "index.html").read_bytes() == (main_run.out / "report" / "index.html").read_bytes()
     for sub in ("release", "tables"):
         names = sorted(p.name for p in (main_run.out / sub).iterdir())

@@ -24,6 +24,14 @@ Drawing (standardised conditional scores ``z``, see :class:`resti_lib.options.st
 anchor ``c ~ N(0, (1 - s²) I)`` and five candidates ``z_j = c + s·e_j`` are exchangeable and each is
 ``N(0, I)``. Given the answer's ``z_a``, the anchor is ``N((1 - s²) z_a, s²(1 - s²) I)`` and the
 other four follow.
+
+Coarsely printed magnitudes (a group whose median answer is under ``model.lattice.below_units``
+printed units, such as speeds of a hand-held camera at 0.01 m/s) are drawn on a *quantile lattice*
+instead (:func:`lattice_scores`): five candidates a printed unit apart cannot crowd an answer of a few
+units the way the anchor model's would, and the widened sets that survive separation made the answer
+the most typical candidate. On the lattice each candidate takes one of five strata of equal
+probability (random offset), so the set is exchangeable under the model whatever the separation
+floor.
 """
 
 from __future__ import annotations
@@ -318,7 +326,7 @@ class RowDraw:
     drawn: list = field(default_factory=list)  # every standardised draw of the row, kept or not
 
     def draw(self, cells: list, s: float, rng: np.random.Generator, *, n: int = 4, prior: bool = False,
-             batch: int | None = None) -> np.ndarray:
+             batch: int | None = None, lattice: float | None = None) -> np.ndarray:
         """Base values (n, d) — or (batch, n, d) — given the answer's base rounding ``cells``
         [(lo, hi), ...]; ``prior``: no designated answer (fixed-slot rows)."""
         d = len(self.maps)
@@ -330,8 +338,11 @@ class RowDraw:
         else:
             u_a = np.column_stack([m.cell_score(lo, hi, rng, K) for m, (lo, hi) in zip(self.maps, cells)])
             z_a = np.linalg.solve(self.L, (u_a - self.mu[None, :]).T).T  # (K, d)
-            c = (1.0 - s * s) * z_a + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
-            z = c[:, None, :] + s * rng.standard_normal((K, n, d))
+            if lattice is not None and d == 1:
+                z = lattice_scores(z_a, n, lattice, rng)
+            else:
+                c = (1.0 - s * s) * z_a + s * math.sqrt(1.0 - s * s) * rng.standard_normal((K, d))
+                z = c[:, None, :] + s * rng.standard_normal((K, n, d))
             self.last_za = z_a
         self.last_z = z
         self.drawn.append(z.reshape(-1, d))
@@ -344,6 +355,24 @@ class RowDraw:
         if self.last_z is not None and self.last_z.ndim == 3:
             self.last_z = self.last_z[i]
             self.last_za = None if self.last_za is None else self.last_za[i]
+
+
+def lattice_scores(z_a: np.ndarray, n: int, width: float, rng: np.random.Generator) -> np.ndarray:
+    """``n`` other candidates (K, n, 1) beside the answer's standardised score ``z_a`` (K, 1) on a jittered
+    quantile lattice: the circle of quantiles [0, 1) is cut into ``n + 1`` strata of equal probability at
+    a random offset, every candidate sits in its own stratum at a uniform position within the stratum's
+    central ``width`` fraction. Given the set, each of the ``n + 1`` is the answer with probability
+    1/(n + 1) (the offset is uniform, so the answer's quantile is uniform whatever its stratum), and
+    neighbours are at least ``(1 - width)/(n + 1)`` apart in probability."""
+    K = z_a.shape[0]
+    m = n + 1
+    q_a = ndtr(z_a[:, 0])
+    lo = 0.5 * (1.0 - width)
+    t_a = lo + width * rng.random(K)
+    r = q_a - t_a / m                                     # the answer's stratum starts at r
+    t = lo + width * rng.random((K, n))
+    q = (r[:, None] + (np.arange(1, m)[None, :] + t) / m) % 1.0
+    return ndtri(np.clip(q, _P_MIN, 1.0 - _P_MIN))[:, :, None]
 
 
 def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.ndarray:

@@ -48,6 +48,13 @@ class ScalarKind(KindBuilder):
                           / (p.spec.value.value + eps) for p in moving])
             W = np.array([[log_window(p.spec), mid_time(p.spec)] for p in moving])
             W = W[:, np.isfinite(W).all(axis=0)] if len(W) else None
+            # coarse printing: five candidates at least a printed unit apart cannot crowd an answer of a
+            # few units as the anchor model would, so they take one stratum of the distribution each
+            units = float(np.median([p.spec.value.value / p.spec.ulp for p in moving]))
+            lat = st.model["lattice"]
+            if units < float(lat["below_units"]):
+                info["lattice"] = float(lat["width"])
+                info["median_units"] = units
             fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=st.model["knn"],
                                 shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
         else:  # only exact zeros: distractors from a weak prior about twenty printed units
@@ -92,7 +99,10 @@ class ScalarKind(KindBuilder):
         else:
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
-            b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds)[:, :, 0]
+            b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds,
+                        lattice=gm.info.get("lattice"))[:, :, 0]
+            if gm.info.get("lattice") is not None:
+                p.evidence["draw"] = "lattice"
         dec = spec.decimals
         xs = np.exp(b + off) - eps
         if strict:  # the widened tiers leave the reuse rate aside rather than fail the row
