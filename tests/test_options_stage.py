@@ -250,6 +250,51 @@ def test_poses_drawn_as_motion_from_the_premise():
         assert ROW_CHECKS["format_consistency"](p) is None
 
 
+def test_poses_before_their_premise_move_backwards_like_their_answers():
+    """A car moving forward, asked half the time for its pose *before* the premise time: the answer is
+    then behind the premise. A reader who knows that (the direction of travel, signed by the time order
+    the question prints) picks the answer at chance; mixing both time orders into one direction model
+    would leave every backwards answer the one candidate behind the premise."""
+    rng = np.random.default_rng(5)
+    rows, prem = [], []
+    for i in range(200):
+        Rp = Rotation.from_euler("zx", [rng.uniform(-180, 180), -90], degrees=True).as_matrix()
+        tp = rng.uniform(-1000, 1000, 3)
+        w = float(rng.integers(2, 8))
+        back = i % 2 == 1
+        fwd = Rp[:, 2] * np.array([1, 1, 0])
+        fwd /= np.linalg.norm(fwd)
+        way = Rotation.from_euler("z", rng.normal(0, 10), degrees=True).as_matrix() @ fwd  # a lane change
+        t = tp + (-1.0 if back else 1.0) * way * np.exp(rng.normal(math.log(9.0), 0.3)) * w
+        P, T = np.eye(4), np.eye(4)
+        R = Rotation.from_euler("z", rng.normal(0, 15), degrees=True).as_matrix() @ Rp
+        P[:3, :3], P[:3, 3], T[:3, :3], T[:3, 3] = Rp, tp, R, t
+        ptxt = V.format_pose(P, 2, compact=True)
+        tq = 10.0 - w if back else 10.0 + w
+        q = (f"Given the camera pose at t=10 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
+             f"pose in the same coordinate frame at t={tq:g} s?")
+        rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
+                         video=f"seg{i}_camera_1.mp4", t0=tq, t1=tq))
+        prem.append((V.parse(ptxt).matrix, -1.0 if back else 1.0))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+    hits = 0.0
+    for r, (P, sign) in zip(out, prem):
+        f = P[:3, 2] * np.array([1, 1, 0])
+        f /= np.linalg.norm(f)
+        along = {L: sign * float(f @ (np.array(V.parse(s).t) - P[:3, 3])) for L, s in r["Candidates"].items()}
+        hits += r["Answer"] == max(along, key=along.get)  # the farthest along the direction of time
+    assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+    back = [r for r, (_, sign) in zip(out, prem) if sign < 0]
+    behind = 0  # backwards rows: how many candidates lie behind the premise (the answer always does)
+    for r, (P, sign) in zip(out, prem):
+        if sign < 0:
+            f = P[:3, 2] * np.array([1, 1, 0])
+            behind += sum(float(f @ (np.array(V.parse(s).t) - P[:3, 3])) < 0 for s in r["Candidates"].values())
+    # the distractors move backwards too: a candidate ahead of the premise would be one a reader who
+    # knows that the car drives forward strikes off (a model of unsigned motion left 78 of 400 there)
+    assert behind == 5 * len(back)
+
+
 def test_rotation_preimage_prints_as_the_answer():
     rng = np.random.default_rng(5)
     for _ in range(50):

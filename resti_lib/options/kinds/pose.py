@@ -21,6 +21,15 @@ from ..spec import (
 from . import KindBuilder, register_kind
 
 
+def time_sign(o) -> float:
+    """-1 for a target time before the premise's (the motion from the premise runs backwards), else 1:
+    translations are modelled along the direction of time, so a car's forward motion is one direction
+    of the model whether the question asks after or before its premise."""
+    if o.premise_time is not None and o.time_end is not None and o.time_end < o.premise_time:
+        return -1.0
+    return 1.0
+
+
 @register_kind("pose")
 class PoseKind(KindBuilder):
     """Poses: a motion from the premise pose (translation in the premise's heading frame and a
@@ -28,7 +37,8 @@ class PoseKind(KindBuilder):
 
     def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
         """Poses as a motion from the premise: the translation in the premise's horizontal heading
-        frame (forward, left, up; a rate over the window for vehicles) and the rotation vector of the
+        frame (forward, left, up; a rate over the window for vehicles; signed by the direction of time,
+        :func:`time_sign`) and the rotation vector of the
         relative rotation ``R R_p^T``, jointly. A question without a printed premise (the reference
         camera as the identity) has the identity as premise."""
         kp = st.params["kinds"]["pose"]
@@ -48,7 +58,7 @@ class PoseKind(KindBuilder):
             info["R0"][p.rid] = R0
             win = o.window_s if (o.window_s and o.window_s > 0) else 1.0
             info["win"][p.rid] = win
-            scale = win if rate else 1.0
+            scale = time_sign(o) * (win if rate else 1.0)
             if o.premise is not None and o.premise_text is not None:
                 Rp, tp = nearest_rotation(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
                 Hf = horizontal_frame(Rp, up, 2)
@@ -58,9 +68,9 @@ class PoseKind(KindBuilder):
             h_t = 0.5 * 10.0 ** -v.decimals
             if not relative:
                 d = Hf.T @ (np.array(v.t, float) - tp) / scale
-                r = Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
+                r = np.sign(scale) * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
                 F.append([*d, *r])
-                Hh.append([h_t / scale] * 3 + [h_t] * 3)
+                Hh.append([h_t / abs(scale)] * 3 + [h_t] * 3)
             W.append([log_window(p.spec)])
         if relative:  # cameras looking at a desk: drawn around the gaze point they share
             depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
@@ -90,7 +100,7 @@ class PoseKind(KindBuilder):
         info = gm.info
         R0, t0 = info["R0"][p.rid], np.array(v.t, float)
         win = info["win"][p.rid]
-        scale = win if info["rate"] else 1.0
+        scale = time_sign(spec.obs) * (win if info["rate"] else 1.0)
         h_t = 0.5 * 10.0 ** -v.decimals
         strings: list[str] = []
         fixed_reveals = list(reveals.get(p.rid, [])) if strict else []  # relaxed tiers draw them all
@@ -115,12 +125,12 @@ class PoseKind(KindBuilder):
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         elif n_draw:
             Rp, tp, Hf = info["frame"][p.rid]
-            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
-            hh = [h_t / scale] * 3 + [h_t] * 3
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, np.sign(scale) * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
+            hh = [h_t / abs(scale)] * 3 + [h_t] * 3
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
-                T[:3, :3] = Rotation.from_rotvec(b[3:6]).as_matrix() @ Rp
+                T[:3, :3] = Rotation.from_rotvec(np.sign(scale) * b[3:6]).as_matrix() @ Rp
                 t = tp + Hf @ (b[:3] * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
