@@ -186,14 +186,24 @@ def main_run(miniworld, tmp_path_factory) -> MainRun:
     return MainRun(out, params, cfg, run["returncode"], run["stdout"], run["stderr"])
 
 
+#: expensive fixtures of a module or session that are made once per worker (not shared on disk)
+SHARED_FIXTURES = ("rebuilt", "v5_table")
+
+
 @pytest.hookimpl(tryfirst=True)  # before the workers read xdist_group to group node ids
 def pytest_collection_modifyitems(config, items):
     """Tests that read the shared main-job run (``main_run``) are slow: ``make test-fast`` leaves them
     out. With parallel workers they stay on one worker (one group), so the main job runs once."""
     for item in items:
-        if "main_run" in getattr(item, "fixturenames", ()):
+        names = getattr(item, "fixturenames", ())
+        if "main_run" in names:
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.xdist_group("main_run"))
+            continue
+        for fixture in SHARED_FIXTURES:  # made once per worker: their readers stay on one worker
+            if fixture in names:
+                item.add_marker(pytest.mark.xdist_group(fixture))
+                break
 
 
 class EditedRun:
