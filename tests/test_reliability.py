@@ -26,6 +26,7 @@ def test_malformed_legacy_rows_are_excluded_with_a_reason(world_with, tmp_path):
     world = world_with("legacy")
     qa = world / "legacy" / "qa.parquet"
     df = pd.read_parquet(qa)
+    df = df[df.groupby("Task").cumcount() < 25].reset_index(drop=True)  # 25 rows of each task: a short run
     n = len(df)
     bad = {}
     i = df.index[df["Task"] == "Displacement & Path Length"][0]
