@@ -46,14 +46,19 @@ def styled(fn):
 def save_figure(fig, path: str | Path, *, dpi: float | None = None) -> Path:
     """Write ``fig`` as PNG to ``path`` (temporary file, then rename), close it, return the path.
 
-    No software tag is written, so the same figure gives the same bytes.
+    No software tag is written, so the same figure gives the same bytes. A figure laid out by the
+    constrained layout engine already fits its page: it is saved as laid out (a tight bounding box
+    would draw it a second time only to find the same box).
     """
     import matplotlib.pyplot as plt
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
 
     path = Path(path)
     buf = io.BytesIO()
     kw = {"dpi": dpi} if dpi is not None else {}
-    fig.savefig(buf, format="png", bbox_inches="tight", metadata={"Software": None}, **kw)
+    if not isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine):
+        kw["bbox_inches"] = "tight"
+    fig.savefig(buf, format="png", metadata={"Software": None}, **kw)
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
     return path
