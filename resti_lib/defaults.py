@@ -82,9 +82,12 @@ RANGES = (
     (r"^(seed|world_seed|decimals)$", 0.0, True, "at least 0"),
     (r"^jobs$", 1.0, True, "at least 1 parallel job"),
     (r"(factor|ratio|shrink)$", 0.0, False, "a factor is above 0"),
+    (r"^width$", 0.0, True, "a share is at least 0"),
     (r"^(min|max)_", 0.0, True, "a bound is at least 0"),
     (r"(_m|_s|_deg|_m_s|_m_s2)$", 0.0, True, "a distance, duration or angle is at least 0"),
 )
+#: Upper bounds, checked after the low one: (pattern on the key, high (included), what it means).
+UPPER = ((r"^width$", 1.0, "a share of a stratum is at most 1"),)
 SOURCE_KEYS = ("ScanNet", "Waymo", "Omni6DPose")
 
 
@@ -95,6 +98,9 @@ def _is_number(v) -> bool:
 def _range_problem(name: str, v: float) -> str | None:
     if not math.isfinite(v):
         return f"{v!r} is not a finite number"
+    for pattern, high, why in UPPER:
+        if re.search(pattern, name) and v > high:
+            return f"{v!r} is out of range ({why})"
     for pattern, low, inclusive, why in RANGES:
         if re.search(pattern, name):
             ok = v >= low if inclusive else v > low

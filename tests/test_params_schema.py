@@ -121,6 +121,16 @@ def test_every_default_params_file_meets_its_own_schema():
         D.check_params(d, d, file=f)  # by construction; a RANGES rule that refuses a default fails here
 
 
+def test_a_lattice_width_outside_zero_to_one_is_refused_by_name():
+    opts = yaml.safe_load((paths.PARAMS / "options.yaml").read_text())
+    for bad in (1.5, -0.1):
+        v = {"model": {**opts["model"], "lattice": {**opts["model"]["lattice"], "width": bad}}}
+        with pytest.raises(InputError) as e:
+            D.check_params(v, opts, file="options.yaml")
+        assert e.value.field == "model" and "width" in str(e.value) and "out of range" in str(e.value)
+    D.check_params({"model": {**opts["model"], "lattice": {"below_units": 20, "width": 1.0}}}, opts)
+
+
 def test_a_frame_rate_of_zero_is_refused_not_replaced():
     from resti_lib.sources.context import SourceContext
 
