@@ -85,7 +85,7 @@ class LearnedConfig:
     max_iter: int = 60
     learning_rate: float = 0.15
     max_leaf_nodes: int = 15
-    min_samples_leaf: int = 20
+    min_samples_leaf: int = 8
     n_estimators: int = 300
     population_model: str = "random_forest"  # the population attacker's classifier (or "gradient_boosting")
     population_trees: int = 60
