@@ -429,6 +429,8 @@ class Stage:
             if picks.empty:
                 break
             picks = picks.assign(direction=picks["direction"].fillna("").astype(str))
+            # every task's rows pooled over its sources too (a leak can be too thin to see per source)
+            picks = pd.concat([picks, picks.assign(source="ALL")], ignore_index=True)
             cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
                 n=("hit", "size"), hits=("hit", "sum"))
             cells["p"] = binom.sf(np.ceil(cells["hits"].to_numpy()) - 1, cells["n"].to_numpy(), 0.2)
