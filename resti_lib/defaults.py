@@ -75,19 +75,18 @@ def setting(params: dict | None, key: str) -> Any:
 #: Keys whose values are integers (their defaults may be written as numbers or null).
 INTEGER_KEYS = frozenset({"seed", "world_seed", "jobs", "decimals", "knn", "max_tries", "min_group", "max_iter",
                           "n_estimators", "max_depth", "folds", "rounds"})
-#: Key-name rules for numbers, first match wins: (pattern on the key, low, low included, what it means).
+#: Key-name rules for numbers, first match wins: (pattern on the key, low, low included, what it means
+#: [, high (included)]).
 RANGES = (
     (r"tol", 0.0, True, "a tolerance is at least 0"),
     (r"fps$", 0.0, False, "a frame rate is above 0"),
     (r"^(seed|world_seed|decimals)$", 0.0, True, "at least 0"),
     (r"^jobs$", 1.0, True, "at least 1 parallel job"),
     (r"(factor|ratio|shrink)$", 0.0, False, "a factor is above 0"),
-    (r"^width$", 0.0, True, "a share is at least 0"),
+    (r"^width$", 0.0, True, "a share of a stratum, from 0 to 1", 1.0),
     (r"^(min|max)_", 0.0, True, "a bound is at least 0"),
     (r"(_m|_s|_deg|_m_s|_m_s2)$", 0.0, True, "a distance, duration or angle is at least 0"),
 )
-#: Upper bounds, checked after the low one: (pattern on the key, high (included), what it means).
-UPPER = ((r"^width$", 1.0, "a share of a stratum is at most 1"),)
 SOURCE_KEYS = ("ScanNet", "Waymo", "Omni6DPose")
 
 
@@ -98,12 +97,9 @@ def _is_number(v) -> bool:
 def _range_problem(name: str, v: float) -> str | None:
     if not math.isfinite(v):
         return f"{v!r} is not a finite number"
-    for pattern, high, why in UPPER:
-        if re.search(pattern, name) and v > high:
-            return f"{v!r} is out of range ({why})"
-    for pattern, low, inclusive, why in RANGES:
+    for pattern, low, inclusive, why, *high in RANGES:
         if re.search(pattern, name):
-            ok = v >= low if inclusive else v > low
+            ok = (v >= low if inclusive else v > low) and all(v <= h for h in high)
             return None if ok else f"{v!r} is out of range ({why})"
     return None
 

@@ -299,6 +299,18 @@ def exclusion_class_table(excluded: list[dict]) -> pd.DataFrame:
 SCALAR_POOL = "all scalar rows"
 
 
+def legacy_attack_table(legacy, *, out_dir, figure, alpha: float = 0.05) -> pd.DataFrame:
+    """The full blind suite on the legacy benchmark (:func:`resti_lib.release.audit.audit_legacy`, tables
+    in ``out_dir``) and its accuracy figure at ``figure``, made together so that a cache of the table
+    (:func:`resti_lib.run.stages.memo_frame`, with ``figure`` among its products) keeps the figure too."""
+    from ..release.audit import audit_legacy
+    from .plots import attack_accuracy
+
+    table = audit_legacy(legacy, out_dir=out_dir, alpha=alpha, families="all", learned=True)
+    attack_accuracy(table, figure, title="Blind attacks on the legacy options", alpha_label=f"alpha={alpha}")
+    return table
+
+
 def pooled_scalar_attacks(legacy: pd.DataFrame, *, alpha: float = 0.05) -> pd.DataFrame:
     """Option-only attacks pooled over every legacy row whose five candidates are scalars (all tasks
     together, as the report's "median pick on the legacy scalar rows"), best first."""

@@ -58,7 +58,8 @@ class PoseKind(KindBuilder):
             info["R0"][p.rid] = R0
             win = o.window_s if (o.window_s and o.window_s > 0) else 1.0
             info["win"][p.rid] = win
-            scale = time_sign(o) * (win if rate else 1.0)
+            sign = time_sign(o)
+            scale = sign * (win if rate else 1.0)
             if o.premise is not None and o.premise_text is not None:
                 Rp, tp = nearest_rotation(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
                 Hf = horizontal_frame(Rp, up, 2)
@@ -68,7 +69,7 @@ class PoseKind(KindBuilder):
             h_t = 0.5 * 10.0 ** -v.decimals
             if not relative:
                 d = Hf.T @ (np.array(v.t, float) - tp) / scale
-                r = np.sign(scale) * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
+                r = sign * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
                 F.append([*d, *r])
                 Hh.append([h_t / abs(scale)] * 3 + [h_t] * 3)
             W.append([log_window(p.spec)])
@@ -100,7 +101,8 @@ class PoseKind(KindBuilder):
         info = gm.info
         R0, t0 = info["R0"][p.rid], np.array(v.t, float)
         win = info["win"][p.rid]
-        scale = time_sign(spec.obs) * (win if info["rate"] else 1.0)
+        sign = time_sign(spec.obs)
+        scale = sign * (win if info["rate"] else 1.0)
         h_t = 0.5 * 10.0 ** -v.decimals
         strings: list[str] = []
         fixed_reveals = list(reveals.get(p.rid, [])) if strict else []  # relaxed tiers draw them all
@@ -125,12 +127,12 @@ class PoseKind(KindBuilder):
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         elif n_draw:
             Rp, tp, Hf = info["frame"][p.rid]
-            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, np.sign(scale) * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, sign * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
             hh = [h_t / abs(scale)] * 3 + [h_t] * 3
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
-                T[:3, :3] = Rotation.from_rotvec(np.sign(scale) * b[3:6]).as_matrix() @ Rp
+                T[:3, :3] = Rotation.from_rotvec(sign * b[3:6]).as_matrix() @ Rp
                 t = tp + Hf @ (b[:3] * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))

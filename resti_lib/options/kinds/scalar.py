@@ -54,7 +54,6 @@ class ScalarKind(KindBuilder):
             lat = st.model["lattice"]
             if units < float(lat["below_units"]):
                 info["lattice"] = float(lat["width"])
-                info["median_units"] = units
             fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=st.model["knn"],
                                 shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
         else:  # only exact zeros: distractors from a weak prior about twenty printed units
@@ -99,9 +98,9 @@ class ScalarKind(KindBuilder):
         else:
             x = v.value
             cell = (math.log(max(x - 0.5 * spec.ulp, 0.0) + eps) - off, math.log(x + 0.5 * spec.ulp + eps) - off)
-            b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds,
-                        lattice=gm.info.get("lattice"))[:, :, 0]
-            if gm.info.get("lattice") is not None:
+            lattice = gm.info.get("lattice")
+            b = st.draw(gm, p.rid, [cell], s, rng, n=n_draw, batch=K, bounds=bounds, lattice=lattice)[:, :, 0]
+            if lattice is not None:
                 p.evidence["draw"] = "lattice"
         dec = spec.decimals
         xs = np.exp(b + off) - eps
