@@ -308,22 +308,39 @@ def test_v5_pose_track_and_travel_direction_in_waymo_pose(v5_rows):
 
 @pytest.mark.shared
 @pytest.mark.slow
-def test_v5_reoptioned_population_attacker_as_strong_as_outside(resti_v5_dir, tmp_path):
-    """The outside review's gradient boosting over population-relative features got 42 of 75 on
-    re-optioned v5 Omni6DPose Speed & Acceleration (seed 0) where the earlier learned attacker got 29.
-    The options of this version differ from those rows; on the same rows, the population attacker is
-    significant and stronger than the earlier learned attacker by the same margin or more.
-
-    The rows are those the review attacked: drawn around an anchor (``model.lattice.below_units: 0``;
-    coarse speeds now take the quantile lattice, whose draw this attacker no longer separates) and
-    before the adversarial filter, which checks with this attacker."""
+def test_v5_camera_sets_not_shared_across_recordings_and_the_learned_attacker_at_chance(resti_v5_dir, tmp_path):
+    """The outside review's learned attacker got 42 of 75 on re-optioned v5 Omni6DPose Speed &
+    Acceleration (seed 0). Its source: camera rows of different recordings with the same window and the
+    same printed answer shared one candidate set, so a learned reader trained on one recording
+    recognised the set, and its answer, in another (a strong options-only attacker hit 0.82 of those
+    rows and chance on the others). Cameras of two recordings are not one subject: no set is shared
+    across them now, and the strong attacker is at chance on the cell before any adversarial filtering;
+    the same rows with the shared sets put back are found (the test can fail)."""
     from resti_lib.release.reoption import reoption_release
 
-    res = reoption_release(resti_v5_dir, tmp_path / "reopt", seed=0,
-                           options={"adversarial": {"rounds": 0}, "model": {"lattice": {"below_units": 0, "width": 0.5}}})
+    res = reoption_release(resti_v5_dir, tmp_path / "reopt", seed=0, options={"adversarial": {"rounds": 0}})
     rows = [json.loads(line) for line in (res.out_dir / "resti.jsonl").read_text(encoding="utf-8").splitlines()]
-    t = attack_table(rows, iface=IFACE, families=("learned_option", "learned_question"),
-                     attacks=["learned_population", "learned_blind"])
-    cell = t[(t["task"] == "Speed & Acceleration") & (t["source"] == "Omni6DPose")].set_index("attack")
-    pop, old = cell.loc["learned_population"], cell.loc["learned_blind"]
-    assert pop["n_rows"] == 75 and pop["significant"] and pop["hits"] >= old["hits"] + (42 - 29) * 0.5
+    speed = [r for r in rows if r["Task"] == "Speed & Acceleration"]
+    video = {r["ReSTI ID"]: r["Video"] for r in rows}
+    ev = res.evidence.set_index("rid")["shared_with"].dropna()
+    omni = {r["ReSTI ID"] for r in speed if r["Source"] == "Omni6DPose"}  # every one asks the camera
+    assert all(video[rid] == video[base] for rid, base in ev.items() if rid in omni)  # within a recording only
+    strong = {"max_iter": 200, "max_leaf_nodes": 31, "min_samples_leaf": 8, "learning_rate": 0.08}
+
+    def cell(rs):
+        t = attack_table(rs, iface=IFACE, families=("learned_option",), attacks=["learned_blind"], learned=strong)
+        return t[(t["source"] == "Omni6DPose") & (t["attack"] == "learned_blind")].iloc[0]
+
+    assert not cell(speed)["significant"]
+    # the sets shared again: camera rows with one question form, window and printed answer take the first one's
+    first: dict = {}
+    shared = []
+    for r in speed:
+        key = (r["Source"], re.sub(r"t=[\d.]+ s", "t", r["Question"]), round(r["time_end"] - r["time_start"], 3),
+               r["Candidates"][r["Answer"]])
+        c = first.setdefault(key, r["Candidates"]) if r["Source"] == "Omni6DPose" and "camera" in r["Question"] \
+            else r["Candidates"]
+        shared.append({**r, "Candidates": c, "Answer": next(k for k, v in c.items() if v == r["Candidates"][r["Answer"]])})
+    assert sum(s["Candidates"] is not r["Candidates"] for s, r in zip(shared, speed)) >= 10
+    again = cell(shared)
+    assert again["significant"] and again["accuracy"] > 0.35

@@ -93,12 +93,16 @@ class GroupModel:
 
 def share_key(spec: OptionSpec) -> tuple:
     """What two rows must have in common to share a candidate set: task, source, the measured
-    quantity of the same subject (camera, or the same noun phrase) over the same window (to the
-    millisecond), and the same answer string."""
+    quantity of the same subject (the camera of one recording, or the same noun phrase) over the same
+    window (to the millisecond), and the same answer string. Cameras of two recordings are not one
+    subject: their answers coincide only through coarse printing, and one set shared by both would
+    carry the answer from a row of one recording to the other's (a learned reader trained on one
+    recognises the set in the other)."""
     o = spec.obs
     window = None if o.window_s is None else round(float(o.window_s), 3)
     subject = " ".join(str(o.subject or "").lower().split())
-    return (spec.task, spec.source, o.quantity, subject, window, o.premise_text, spec.detail)
+    recording = o.sequence if o.subject_class == "camera" else None
+    return (spec.task, spec.source, o.quantity, subject, recording, window, o.premise_text, spec.detail)
 
 
 def couple_key(spec: OptionSpec) -> tuple:
