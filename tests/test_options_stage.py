@@ -250,19 +250,33 @@ def test_poses_drawn_as_motion_from_the_premise():
         assert ROW_CHECKS["format_consistency"](p) is None
 
 
-def test_poses_before_their_premise_move_backwards_like_their_answers():
+# camera axes as releases print them: OpenCV (+Z forward, +Y down) and the Waymo camera frame (+X forward,
+# +Z up, each camera a few tenths of a degree off level)
+CAMERA_AXES = {
+    "opencv": (lambda yaw, rng: Rotation.from_euler("zx", [yaw, -90], degrees=True).as_matrix(), 2),
+    "waymo": (lambda yaw, rng: Rotation.from_euler("zyx", [yaw, rng.normal(0, 0.5), rng.normal(0, 0.5)],
+                                                    degrees=True).as_matrix(), 0),
+}
+
+
+@pytest.mark.parametrize("axes", sorted(CAMERA_AXES))
+def test_poses_before_their_premise_move_backwards_like_their_answers(axes):
     """A car moving forward, asked half the time for its pose *before* the premise time: the answer is
     then behind the premise. A reader who knows that (the direction of travel, signed by the time order
     the question prints) picks the answer at chance; mixing both time orders into one direction model
-    would leave every backwards answer the one candidate behind the premise."""
+    would leave every backwards answer the one candidate behind the premise. The same holds whichever
+    camera axes the release prints: in the Waymo camera frame the optical +Z is up, and a heading frame
+    read off it turns with its small tilt, not with the car (the candidates then scatter around the
+    premise while the answer lies ahead)."""
+    rotation, fwd_col = CAMERA_AXES[axes]
     rng = np.random.default_rng(5)
     rows, prem = [], []
     for i in range(200):
-        Rp = Rotation.from_euler("zx", [rng.uniform(-180, 180), -90], degrees=True).as_matrix()
+        Rp = rotation(rng.uniform(-180, 180), rng)
         tp = rng.uniform(-1000, 1000, 3)
         w = float(rng.integers(2, 8))
         back = i % 2 == 1
-        fwd = Rp[:, 2] * np.array([1, 1, 0])
+        fwd = Rp[:, fwd_col] * np.array([1, 1, 0])
         fwd /= np.linalg.norm(fwd)
         way = Rotation.from_euler("z", rng.normal(0, 10), degrees=True).as_matrix() @ fwd  # a lane change
         t = tp + (-1.0 if back else 1.0) * way * np.exp(rng.normal(math.log(9.0), 0.3)) * w
@@ -277,18 +291,33 @@ def test_poses_before_their_premise_move_backwards_like_their_answers():
                          video=f"seg{i}_camera_1.mp4", t0=tq, t1=tq))
         prem.append((V.parse(ptxt).matrix, -1.0 if back else 1.0))
     out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+
+    def forward(P):
+        f = P[:3, fwd_col] * np.array([1, 1, 0])
+        return f / np.linalg.norm(f)
+
     hits = 0.0
     for r, (P, sign) in zip(out, prem):
-        f = P[:3, 2] * np.array([1, 1, 0])
-        f /= np.linalg.norm(f)
+        f = forward(P)
         along = {L: sign * float(f @ (np.array(V.parse(s).t) - P[:3, 3])) for L, s in r["Candidates"].items()}
         hits += r["Answer"] == max(along, key=along.get)  # the farthest along the direction of time
     assert binomtest(int(hits), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+    # the candidate whose displacement points most nearly along the direction of time (the outside
+    # review's travel-direction reader)
+    aligned = 0
+    for r, (P, sign) in zip(out, prem):
+        f = forward(P)
+        cos = {}
+        for L, s in r["Candidates"].items():
+            d = sign * (np.array(V.parse(s).t) - P[:3, 3])
+            cos[L] = float(f @ d) / max(float(np.linalg.norm(d)), 1e-9)
+        aligned += r["Answer"] == max(cos, key=cos.get)
+    assert binomtest(aligned, len(out), 0.2, alternative="greater").pvalue > 0.01, aligned / len(out)
     back = [r for r, (_, sign) in zip(out, prem) if sign < 0]
     behind = 0  # backwards rows: how many candidates lie behind the premise (the answer always does)
     for r, (P, sign) in zip(out, prem):
         if sign < 0:
-            f = P[:3, 2] * np.array([1, 1, 0])
+            f = forward(P)
             behind += sum(float(f @ (np.array(V.parse(s).t) - P[:3, 3])) < 0 for s in r["Candidates"].values())
     # the distractors move backwards too: a candidate ahead of the premise would be one a reader who
     # knows that the car drives forward strikes off (a model of unsigned motion left 78 of 400 there)

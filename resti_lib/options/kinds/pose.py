@@ -30,6 +30,20 @@ def time_sign(o) -> float:
     return 1.0
 
 
+def heading_axis(premises: list, up) -> int:
+    """The premise camera axis whose horizontal projection carries a group's heading frame: the axis
+    most nearly horizontal over the group's printed premises (median of ``|axis . up|``). Releases
+    print cameras in different axes (OpenCV +Z forward and +Y down; the Waymo camera frame +X forward
+    and +Z up): a fixed axis would be the vertical one for some, whose horizontal projection is only
+    its small tilt, an arbitrary heading per row. Any horizontal axis is rigid with the heading, so
+    the frame turns with the camera either way."""
+    if not premises:
+        return 2
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    tilt = np.median([np.abs(np.asarray(P, float)[:3, :3].T @ up) for P in premises], axis=0)
+    return int(np.argmin(tilt))
+
+
 @register_kind("pose")
 class PoseKind(KindBuilder):
     """Poses: a motion from the premise pose (translation in the premise's heading frame and a
@@ -48,6 +62,8 @@ class PoseKind(KindBuilder):
         info: dict = {"rate": rate, "R0": {}, "frame": {}, "win": {}}
         relative = all(p.spec.obs.premise_text is None for p in ps)
         info["relative"] = relative
+        col = heading_axis([p.spec.obs.premise for p in ps if p.spec.obs.premise_text is not None], up)
+        info["heading_axis"] = col
         ts = np.array([p.spec.value.t for p in ps], float)
         info["t_decimals"] = [recorded_decimals(ts[:, j], ps[0].spec.decimals) for j in range(3)]
         F, Hh, W = [], [], []
@@ -62,7 +78,7 @@ class PoseKind(KindBuilder):
             scale = sign * (win if rate else 1.0)
             if o.premise is not None and o.premise_text is not None:
                 Rp, tp = nearest_rotation(o.premise[:3, :3]), np.array(o.premise[:3, 3], float)
-                Hf = horizontal_frame(Rp, up, 2)
+                Hf = horizontal_frame(Rp, up, col)
             else:  # relative poses: the reference camera is the identity
                 Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)
             info["frame"][p.rid] = (Rp, tp, Hf)
