@@ -18,9 +18,10 @@ from scipy.stats import binomtest, norm
 from resti_lib import LETTERS
 from resti_lib import values as V
 from resti_lib.geometry.fields import rotation_preimage
+from resti_lib.options.attacks import attack_table
 from resti_lib.options.checks import ROW_CHECKS, parse_row
 from resti_lib.options.stage import build_options
-from resti_lib.options.structural import evaluation_subset, structural_leaks
+from resti_lib.options.structural import evaluation_subset, residual_ids, structural_leaks
 from resti_lib.tasks import interface as _interface
 
 IFACE = _interface()
@@ -445,6 +446,49 @@ def test_subset_counts_every_premise_reveal_and_answers_equal_to_their_premise()
     reasons = {d["id"]: d["reason"] for d in sub["dropped"]}
     assert reasons == {"r0": "same_video_reveal", "r3": "answer_is_premise"}
     assert sorted(sub["ids"]) == ["r1", "r2"] and sub["n_kept"] + len(sub["dropped"]) == len(rows)
+
+
+def test_residual_rows_leave_out_both_questions_of_a_revealing_pair():
+    """Two questions of one video, each printing the other's answer as its premise (t=1 -> t=3 and
+    t=3 -> t=1): the subset keeps one of them, but a reader of the whole file still finds its answer in
+    the other's question, so neither is a residual row. A zero answer above one in five is structural
+    too; an unrelated pose and the rows trimmed only for label balance stay residual."""
+    q = ("Given the camera pose at t={} s in the Waymo world coordinate frame: {}, what is the camera pose in "
+         "the same coordinate frame at t={} s?")
+    v = "seg0_camera_1.mp4"
+    rows = [
+        _row(0, "Pose Estimation", "Waymo", q.format(1, _pose(0.0), 3), _pose(5.0), video=v, t0=3, t1=3),
+        _row(1, "Pose Estimation", "Waymo", q.format(3, _pose(5.0), 1), _pose(0.0), video=v, t0=1, t1=1),
+        _row(2, "Pose Estimation", "Waymo", q.format(5, _pose(30.0), 9), _pose(41.0), video=v, t0=9, t1=9),
+    ]
+    sub = evaluation_subset(rows, IFACE)
+    assert len(sub["ids"]) == 2 and "r2" in sub["ids"]  # one of the pair is kept
+    assert residual_ids(rows, IFACE, sub) == ["r2"]
+    # label balance trims a prior, no structural leak: those rows stay residual
+    sub2 = {"ids": ["r0"], "dropped": [{"id": "r1", "reason": "label_balance"}, {"id": "r2", "reason": "zero_slot"}]}
+    assert residual_ids(rows[2:], IFACE, sub2) == ["r0", "r1"]
+
+
+def test_attack_table_scores_only_the_rows_it_is_asked_to():
+    """Every row stays readable, only the named rows are scored: the answer is the smallest candidate
+    in rows 0-19 and the largest in rows 20-39; scoring rows 0-9 and 30-39 counts 10 hits of 20 for
+    the smallest-candidate rule, by hand."""
+    rows = []
+    for i in range(40):
+        vals = [1.0 + k for k in range(5)]
+        ans = 0 if i < 20 else 4
+        r = _row(i, "Speed & Acceleration", "Waymo", "What is the magnitude of the camera's average velocity "
+                 "between t=0 s and t=5 s? (unit: m/s)", V.format_scalar(vals[ans], "m/s"),
+                 video=f"seg{i}_camera_1.mp4")
+        r["Candidates"] = {L: V.format_scalar(x, "m/s") for L, x in zip(LETTERS, vals)}
+        r["Answer"] = LETTERS[ans]
+        rows.append(r)
+    ids = [f"r{i}" for i in list(range(10)) + list(range(30, 40))]
+    t = attack_table(rows, iface=IFACE, attacks=["min"], evaluate=ids)
+    cell = t[(t["attack"] == "min") & (t["source"] == "Waymo")].iloc[0]
+    assert (cell["n_rows"], cell["hits"]) == (20, 10)
+    whole = attack_table(rows, iface=IFACE, attacks=["min"])
+    assert whole[(whole["attack"] == "min") & (whole["source"] == "Waymo")].iloc[0]["hits"] == 20
 
 
 def test_subset_keeps_one_of_each_converse_relation_pair():

@@ -149,24 +149,33 @@ def _pose_leaks(sp: list, n: int) -> list[Leak]:
         out.append(("rotation_repeat", same, 1.0,
                     f"{same} of {n} answers print the premise's rotation; candidates' printed rotations must differ",
                     "none by options (print rotations at more decimals in the question contract)"))
-    premises: dict[str, dict] = defaultdict(lambda: defaultdict(set))  # every printer kept
-    for s in sp:
-        if s.obs.premise_text:
-            premises[s.obs.video][V.parse(s.obs.premise_text).key()].add(s.rid)
     acc, revealed = 0.0, 0
-    for s in sp:
-        prem = premises.get(s.obs.video, {})
-        key = s.value.key()
-        if prem.get(key):  # printed as a premise: by another question, or by its own
-            revealed += 1
-            own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
-            others = len([k for k in prem if k not in (key, own)])  # usable as distractors
-            acc += 1.0 if s.rid in prem[key] else 1.0 / (1 + min(4, others))
+    for s, printers, others in premise_reveals(sp):
+        revealed += 1
+        acc += 1.0 if s.rid in printers else 1.0 / (1 + min(4, others))
     if revealed:
         out.append(("same_video_reveal", revealed, acc / revealed,
                     f"{revealed} of {n} answers are printed as a premise in the same video (their own or another "
                     "question's)", "evaluation subset keeps one question of each revealing pair"))
     return out
+
+
+def premise_reveals(specs: list):
+    """``(spec, printers, others)`` for each Pose answer printed as the premise of a question of its
+    video (its own or another's; every printer counted, none overwritten): the ids of the questions
+    that print it, and how many other premises of the video could serve as distractors."""
+    premises: dict[str, dict] = defaultdict(lambda: defaultdict(set))
+    for s in specs:
+        if s is not None and s.kind == "pose" and s.obs.premise_text:
+            premises[s.obs.video][V.parse(s.obs.premise_text).key()].add(s.rid)
+    for s in specs:
+        if s is None or s.kind != "pose":
+            continue
+        prem = premises.get(s.obs.video, {})
+        key = s.value.key()
+        if prem.get(key):
+            own = V.parse(s.obs.premise_text).key() if s.obs.premise_text else None
+            yield s, prem[key], len([k for k in prem if k not in (key, own)])
 
 
 def _label_leaks(sp: list, n: int) -> list[Leak]:
@@ -480,4 +489,26 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
     }
 
 
-__all__ = ["structural_leaks", "evaluation_subset", "COLUMNS"]
+#: Reasons of :func:`evaluation_subset` that name a leak no option design hides (the row's answer
+#: follows from the video name, a converse question, a sibling asking the same thing, a premise printed
+#: in a question, a window under the separation floor, every candidate of a related row, or a zero
+#: string more frequent than one in five). The others (``label_balance``, ``keyed_reveal``) trim what
+#: is left for a balanced evaluation and a reader of the answer key.
+STRUCTURAL_REASONS = ("metadata", "converse_pair", "repeated_answer", "answer_is_premise", "same_video_reveal",
+                      "floor_forced", "relation_floor", "zero_slot")
+
+
+def residual_ids(records: list[dict], iface: Interface, subset: dict) -> list[str]:
+    """The ids of the rows of a release that no structural leak touches, for a reader of the whole
+    file: every row but those its :func:`evaluation_subset` drops for a reason in
+    :data:`STRUCTURAL_REASONS`, and every Pose answer printed as a premise of its video (the subset
+    keeps one row of each revealing pair, which the other row's question still reveals in the file).
+    An attack that beats chance on them (``attack_table(..., evaluate=residual_ids(...))``) found a
+    leak of the options."""
+    structural = {d["id"] for d in subset["dropped"] if d["reason"] in STRUCTURAL_REASONS}
+    structural |= {s.rid for s, _, _ in premise_reveals(_specs(records, iface))}
+    every = list(subset["ids"]) + [d["id"] for d in subset["dropped"]]
+    return sorted(set(every) - structural)
+
+
+__all__ = ["structural_leaks", "evaluation_subset", "residual_ids", "STRUCTURAL_REASONS", "COLUMNS"]

@@ -288,7 +288,8 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
 
 
 def attack_table(records: list[dict], *, iface=None, families=None, alpha: float = 0.05, fast: bool = False,
-                 attacks=None, learned=None, groups: dict | None = None, progress: bool = False) -> pd.DataFrame:
+                 attacks=None, learned=None, groups: dict | None = None, progress: bool = False,
+                 evaluate: Iterable | None = None) -> pd.DataFrame:
     """The attack table of a list of release rows (dicts with Candidates as dicts).
 
     Parameters
@@ -317,6 +318,11 @@ def attack_table(records: list[dict], *, iface=None, families=None, alpha: float
         sequence read from the video name).
     progress:
         Show a progress bar over the attacks.
+    evaluate:
+        Score only these rows (ids as :func:`parse_rows` gives them: ``ReSTI ID``, else ``Legacy Row
+        Key``); every row stays readable (siblings, populations, training folds). With the ids outside
+        the named structural leaks (:func:`resti_lib.options.structural.residual_ids`), the table
+        says whether the options leak anything beyond what no option design can hide.
     """
     if families is None:
         families = OPTION_ONLY if attacks in (None, "all") else "all"
@@ -335,6 +341,9 @@ def attack_table(records: list[dict], *, iface=None, families=None, alpha: float
         if len(f):
             frames.append(f)
     picks = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=PICK_COLUMNS)
+    if evaluate is not None:
+        keep = {str(x) for x in evaluate}
+        picks = picks[picks["rid"].astype(str).isin(keep)]
     return summarize_picks(picks, alpha=alpha, task_order=batch.task_order)
 
 
