@@ -6,6 +6,7 @@ without ``../shared`` unless CI=true) is rebuilt once per session and checked fi
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from collections import Counter
@@ -177,6 +178,24 @@ def test_cli_reoption(tiny_release, tmp_path, capsys):
     assert "verify: PASSED" in capsys.readouterr().out
     assert verify_path(out)["passed"]
     assert cli_main(["verify", str(out)]) == 0
+    # the attack scores the rows it is asked to: the subset's rows alone, or the rows outside the named
+    # structural leaks; the cell sizes are counted from the release's own files
+    rows = _read_jsonl(out / "resti.jsonl")
+    subset = json.loads((out / "evaluation_subset.json").read_text())
+    structural = {d["id"] for d in subset["dropped"] if d["reason"] in
+                  ("metadata", "converse_pair", "repeated_answer", "answer_is_premise", "same_video_reveal",
+                   "floor_forced", "relation_floor", "zero_slot")}
+    for scope, ids in (("subset", set(subset["ids"])), ("residual", {r["ReSTI ID"] for r in rows} - structural)):
+        capsys.readouterr()
+        assert cli_main(["attack", str(out), "--fast", "--rows", scope, "--format", "csv"]) == 0
+        t = pd.read_csv(io.StringIO(capsys.readouterr().out))
+        want = Counter(r["Task"] for r in rows if r["ReSTI ID"] in ids)
+        got = t[(t["source"] == "ALL") & (t["attack"] == "constant_letter")].set_index("task")["n_rows"].to_dict()
+        assert got == {k: v for k, v in want.items() if k in got} and set(got) == set(want), (scope, got, want)
+    # without the subset file the scope is refused by name, not silently widened
+    (out / "evaluation_subset.json").unlink()
+    assert cli_main(["attack", str(out), "--fast", "--rows", "residual"]) != 0
+    assert "evaluation_subset.json" in capsys.readouterr().err
 
 
 def test_failed_verification_publishes_nothing(tiny_release, tmp_path, monkeypatch):

@@ -26,13 +26,20 @@ from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
 from ..options.attacks import attack_table, headline, select
+from ..options.structural import residual_ids
 from ..tasks import interface
 from ..tasks import names as task_names
 from .verify import release_interface, verify_release
 
 #: The suite every place runs on a release (``resti attack`` without options): every family, the
 #: learned attackers with their default settings, Holm's correction at ``alpha`` over the whole table.
-SUITE = {"families": "all", "fast": False, "attacks": "all", "alpha": 0.05}
+SUITE = {"families": "all", "fast": False, "attacks": "all", "alpha": 0.05, "rows": "all"}
+
+#: Which rows ``resti attack`` scores: ``all``; ``subset``: the rows of the release's evaluation subset,
+#: read on their own (what an evaluation on the subset shows a reader); ``residual``: the rows no named
+#: structural leak touches, read with the whole file beside them
+#: (:func:`resti_lib.options.structural.residual_ids`).
+ROW_SCOPES = ("all", "subset", "residual")
 
 @dataclass(frozen=True)
 class AttackCounts:
@@ -130,29 +137,59 @@ def suite_command(path: str, suite: dict) -> str:
         args.append("--fast")
     if float(suite.get("alpha", SUITE["alpha"])) != SUITE["alpha"]:
         args += ["--alpha", f"{suite['alpha']:g}"]
+    if suite.get("rows", "all") != "all":
+        args += ["--rows", suite["rows"]]
     return " ".join(shlex.quote(a) for a in args)
 
 
 def attack_release(release: str | Path | Release, *, families="all", attacks="all", fast: bool = False,
-                   alpha: float = SUITE["alpha"], progress: bool = False) -> AttackRun:
+                   alpha: float = SUITE["alpha"], progress: bool = False, rows: str = "all") -> AttackRun:
     """The blind attack suite on a release folder (or accepted-rows file, or a loaded release): the
     rows an attack can read (:func:`attack_rows`; the others are listed in ``skipped``), the answer
     interface the release records (:func:`resti_lib.release.verify.release_interface`), the
     ``families`` (or ``attacks``) of the suite with the learned attackers at their default settings
-    unless ``fast``, and Holm's correction at ``alpha`` over every row of the table. Unknown family or
-    attack names raise ``ValueError``."""
+    unless ``fast``, and Holm's correction at ``alpha`` over every row of the table; ``rows`` (one of
+    :data:`ROW_SCOPES`) names the rows scored. Unknown family or attack names, and a subset or
+    residual scope without a readable ``evaluation_subset.json`` beside the rows, raise ``ValueError``."""
+    if rows not in ROW_SCOPES:
+        raise ValueError(f"rows {rows!r}: expected one of {', '.join(ROW_SCOPES)}")
     names = select(None if families in (None, "all") else families,
                    None if attacks in (None, "all", ["all"]) else attacks, fast=fast)
     rel = release if isinstance(release, Release) else load_release(release, strict=False, known_tasks=task_names())
     records, skipped = attack_rows(rel)
     iface = release_interface(rel)[0]
-    table = attack_table(records, iface=iface, families="all", attacks=names, alpha=alpha, progress=progress) \
+    evaluate = None
+    if rows != "all":
+        subset = _evaluation_subset(rel, rows)
+        if rows == "subset":
+            keep = {str(x) for x in subset["ids"]}
+            records = [r for i, r in enumerate(records) if str(r.get("ReSTI ID") or i) in keep]
+        else:
+            evaluate = residual_ids(records, iface, subset)
+    table = attack_table(records, iface=iface, families="all", attacks=names, alpha=alpha, progress=progress,
+                         evaluate=evaluate) \
         if records else pd.DataFrame(columns=["attack", "family", "task", "source", "n_rows", "coverage", "picked",
                                               "hits", "accuracy", "chance", "p_value", "p_holm", "significant",
                                               "min_detectable", "underpowered"])
     suite = {"families": families if families not in (None, ["all"]) else "all", "fast": bool(fast),
-             "attacks": attacks if attacks not in (None, ["all"]) else "all", "alpha": alpha}
+             "attacks": attacks if attacks not in (None, ["all"]) else "all", "alpha": alpha, "rows": rows}
     return AttackRun(rel, table, skipped, suite)
+
+
+def _evaluation_subset(rel: Release, rows: str) -> dict:
+    """The ``evaluation_subset.json`` beside a release's rows (``resti reoption`` writes it)."""
+    path = Path(rel.accepted_file).parent / "evaluation_subset.json" if rel.accepted_file else None
+    if path is None or not path.is_file():
+        raise ValueError(f"rows {rows!r} needs the release's evaluation_subset.json ({path or 'no release folder'} "
+                         "not found; resti reoption writes it)")
+    try:
+        subset = json.loads(path.read_text(encoding="utf-8"))
+        ids, dropped = subset["ids"], subset["dropped"]
+        if not isinstance(ids, list) or not all(isinstance(d, dict) and "id" in d and "reason" in d for d in dropped):
+            raise TypeError("ids must be a list and dropped a list of {id, reason}")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"file {path}: not an evaluation subset ({type(e).__name__}: {e})") from None
+    return subset
 
 
 @dataclass

@@ -38,7 +38,7 @@ def _cmd_attack(a) -> int:
 
     try:
         run = attack_release(a.path, families=a.families or "all", attacks=a.attacks, fast=a.fast, alpha=a.alpha,
-                             progress=True)
+                             progress=True, rows=a.rows)
     except ValueError as e:
         print(f"resti attack: {e}", file=sys.stderr)
         return EXIT_INPUT
@@ -179,6 +179,9 @@ def build_parser(*, full_help: bool = False) -> argparse.ArgumentParser:
     at.add_argument("--fast", action="store_true", help="leave the learned families out")
     at.add_argument("--attacks", nargs="*", default="all", help="attack names (default: all of the families; "
                     "listed below)")
+    at.add_argument("--rows", choices=["all", "subset", "residual"], default="all",
+                    help="rows scored: all; subset: the evaluation subset's rows, read on their own; residual: the rows "
+                    "no named structural leak touches, read with the whole file (both need evaluation_subset.json)")
     at.add_argument("--headline", action="store_true",
                     help="print only the headline: one row per task/source cell, significant cells first")
     at.add_argument("--fail-on-significant", action="store_true",
