@@ -35,11 +35,12 @@ def repeated_release(src: Path, k: int, out: Path) -> int:
     for c in range(k):
         tag = f"r{c}_" if c else ""  # the first copy keeps v5's names
 
-        def key(old: str) -> str:  # Source|Task|Video|ID|uid=<16 hex>, renamed
+        def key(old: str, tag: str = tag) -> str:  # Source|Task|Video|ID|uid=<16 hex>, renamed
             if not tag:
                 return old
             src_, task, video, rid, uid = old.split("|")
-            return "|".join([src_, task, tag + video, rid, "uid=" + hashlib.sha256((tag + uid).encode()).hexdigest()[:16]])
+            uid = "uid=" + hashlib.sha256((tag + uid).encode()).hexdigest()[:16]
+            return "|".join([src_, task, tag + video, rid, uid])
 
         for r in acc:
             rows.append({**r, "Video": tag + r["Video"], "ReSTI ID": f"{r['ReSTI ID']}{':' + tag if tag else ''}",
