@@ -41,6 +41,7 @@ SUITE = {"families": "all", "fast": False, "attacks": "all", "alpha": 0.05, "row
 #: (:func:`resti_lib.options.structural.residual_ids`).
 ROW_SCOPES = ("all", "subset", "residual")
 
+
 @dataclass(frozen=True)
 class AttackCounts:
     """What every place prints about one attack table."""
