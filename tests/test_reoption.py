@@ -26,6 +26,7 @@ from resti_lib.options.plan import constrained_schedule
 from resti_lib.options.population import Marginal
 from resti_lib.options.structural import residual_ids
 from resti_lib.release import reoption as RO
+from resti_lib.release.audit import attack_release
 from resti_lib.release.verify import verify_path
 from resti_lib.run.cli import main as cli_main
 from resti_lib.tasks import interface as _interface
@@ -393,22 +394,25 @@ def test_v5_no_significant_attack_after(rebuilt):
     tasks_named = {t for t, _ in named}
     unexplained = sig[[not ((t, s) in named or (s == "ALL" and t in tasks_named))
                        for t, s in zip(sig["task"], sig["source"])]]
-    # known gaps (issue 19): ScanNet pose distractors are atypical field by field (the field prior of
-    # the outside review); Omni6DPose sizes recur across scenes more often as answers than as
-    # distractors (the string and field rates). Rows linked by a physical relation across tasks follow
-    # each other's candidate sets (options/follow.py): the relation attacks find nothing unexplained.
-    # Nothing else may be unexplained
-    known = {"field_density", "string_rate", "field_rate"}
-    assert not any(a.startswith("rel_") for a in unexplained["attack"])
-    assert set(unexplained["attack"]) <= known, unexplained[["attack", "task", "source", "accuracy", "p_value"]]
+    # rows linked by a physical relation across tasks follow each other's candidate sets
+    # (options/follow.py): the relation attacks find nothing unexplained, and nothing else may be
+    assert unexplained.empty, unexplained[["attack", "task", "source", "accuracy", "p_value"]]
     # the rows no structural leak touches, read with the whole file beside them (siblings, populations,
     # training folds): the full suite finds nothing there, so every significant test above is the named
     # structure, not the options
     subset = json.loads((rebuilt.out_dir / "evaluation_subset.json").read_text())
     ids = residual_ids(rebuilt.rows, IFACE, subset)
     assert 0.8 * len(rebuilt.rows) < len(ids) < len(rebuilt.rows)
-    residual = attack_table(iface=IFACE, records=rebuilt.rows, families="all", evaluate=ids)
+    residual = attack_release(rebuilt.out_dir, rows="residual").table  # resti attack --rows residual
+    idset = set(ids)
+    want = Counter(r["Task"] for r in rebuilt.rows if r["ReSTI ID"] in idset)
+    got = residual[(residual["source"] == "ALL") & (residual["attack"] == "constant_letter")]
+    assert got.set_index("task")["n_rows"].to_dict() == dict(want)
     assert not residual["significant"].any(), residual[residual["significant"]][
+        ["attack", "task", "source", "accuracy", "p_holm"]]
+    # the evaluation subset read on its own, Spatial Relation included: at chance for every family
+    sub_table = attack_release(rebuilt.out_dir, rows="subset").table  # resti attack --rows subset
+    assert not sub_table["significant"].any(), sub_table[sub_table["significant"]][
         ["attack", "task", "source", "accuracy", "p_holm"]]
     # the irreducible leak is measured: Waymo Spatial Relation answers are mostly one label
     lab = RO.label_balance(rebuilt.rows)
