@@ -168,7 +168,7 @@ POSE_ROWS = 4
 NOUNS = ("chair", "table", "sofa", "cabinet", "lamp")
 SPATIAL = ("Left", "Right", "Closer", "Farther", "Directly above")
 MIRRORED = {"Left": "Right", "Right": "Left", "Closer": "Farther", "Farther": "Closer"}
-RECORDING_PLANTS = ("rate_window", "path_length", "turn_sum", "box_edge", "pose_track", "converse",
+RECORDING_PLANTS = ("rate_window", "path_length", "distance_bound", "turn_sum", "box_edge", "pose_track", "converse",
                     "travel_direction", "fewest_significant", "shortest", "last_digit", "string_rate", "field_rate",
                     "field_density", "nearest_set")
 STRING_POOL = tuple(f"{0.50 + 0.05 * i:.2f}m" for i in range(20))
@@ -247,6 +247,8 @@ def _scannet_recording(rng, r: int, plant) -> list:
     add("Trajectory Description", _window_q("trajectory", t0, t1),
         _distinct(lambda: _traj(rng, w)[0], first=traj), 0)
     other_total = _traj(rng, w)[1]
+    if plant == "distance_bound":  # a nearly straight drive: the displacement is 90-100% of the path length
+        other_total = V.parse(rows[1]["Answer Detail"]).si / float(rng.uniform(0.9, 1.0))
     add("Displacement & Path Length", _window_q("path_length", t0, t1),
         _distinct(lambda: V.format_scalar(_traj(rng, w)[1], "m"),
                   first=V.format_scalar(total if plant == "path_length" else other_total, "m")), 0)

@@ -41,6 +41,10 @@ PLANTED = {
     # displacement rows of its cell, not its path-length rows: (60 + 60/5) / 120 = 0.6 there, by hand
     "rate_window": ("keyed", "keyed_rate_window", {S: 0.95, D: 0.5}),
     "path_length": ("keyed", "keyed_path_length", {"Trajectory Description": 0.95, D: 0.95}),
+    # the displacement is at most the path length asked beside it and near it: the largest displacement
+    # within the path picks it, and the shortest path beyond the displacement picks the path (exactly
+    # counted by test_distance_bound_hits_counted_from_the_strings)
+    "distance_bound": ("keyed", "keyed_distance_bound", {D: 0.6}),
     "turn_sum": ("keyed", "keyed_turn_sum", {"Ego-Centric Orientation": 0.95, "Trajectory Description": 0.95}),
     "box_edge": ("keyed", "keyed_box_edge", {"Dimensional Measurement": 0.95, "3D Video Grounding": 0.95}),
     # every pose of a segment lies on one straight track at a constant speed: seven known poses per row
@@ -108,7 +112,7 @@ def test_family_finds_its_planted_channel(plant):
     assert others.empty, others[["attack", "task", "source", "accuracy"]]
 
 
-@pytest.mark.parametrize("plant", ["rate_window", "path_length", "turn_sum", "box_edge"])
+@pytest.mark.parametrize("plant", ["rate_window", "path_length", "distance_bound", "turn_sum", "box_edge"])
 def test_blind_relations_find_a_plant_from_the_siblings_candidates(plant):
     """A blind reader sees a sibling's five candidates, not its key: the planted answer is the candidate
     that the relation pairs with one of them (the distractors, drawn apart, pair with none), so the blind
@@ -117,7 +121,8 @@ def test_blind_relations_find_a_plant_from_the_siblings_candidates(plant):
     t = attack_table(recording_rows(plant, seed=0), iface=IFACE, families="relation")
     for task in cells:
         hit = _cell(t, name.replace("keyed_", "rel_"), task)
-        assert hit["significant"] and hit["accuracy"] > 0.4, hit
+        # a bound read off five path candidates keeps every displacement within one of them: a weaker pick
+        assert hit["significant"] and hit["accuracy"] > (0.3 if plant == "distance_bound" else 0.4), hit
 
 
 def test_planted_rate_reveals_every_speed_row():
@@ -127,6 +132,38 @@ def test_planted_rate_reveals_every_speed_row():
     assert _cell(t, "keyed_rate_window", S)["hits"] >= N_RECORDINGS - 1
     disp = _cell(t, "keyed_rate_window", D)
     assert disp["picked"] == 2 * N_RECORDINGS and 0.5 < disp["accuracy"] < 0.7
+
+
+def test_distance_bound_hits_counted_from_the_strings():
+    """keyed_distance_bound's hits counted a second way, from the printed strings of each recording: the
+    largest displacement candidate not above a path over the window (the path length's answer, or the
+    total of the trajectory description's answer: a tie of both picks), and the shortest path-length
+    candidate not below the displacement's answer (0.011 m of printing slack each way)."""
+    rows = recording_rows("distance_bound", seed=0)
+    t = attack_table(rows, iface=IFACE, families="keyed", attacks=["keyed_distance_bound"])
+    metres = lambda s: float(s.rstrip("m"))  # noqa: E731
+    moved = lambda s: sum(float(x) for x in re.findall(r"move \w+ ([0-9.]+)m", s))  # noqa: E731
+    by_video: dict = {}
+    for r in rows:
+        kind = {"Trajectory Description": "traj"}.get(r["Task"]) or (
+            r["Task"] == D and ("disp" if "displacement" in r["Question"] else "path"))
+        if kind:
+            by_video.setdefault(r["Video"], {})[kind] = r
+    hits = 0.0
+    for rec in by_video.values():
+        disp, path, traj = rec["disp"], rec["path"], rec["traj"]
+        picks = set()
+        for bound in (metres(path["Candidates"][path["Answer"]]), moved(traj["Candidates"][traj["Answer"]])):
+            ok = {k: metres(v) for k, v in disp["Candidates"].items() if metres(v) <= bound * 1.001 + 0.011}
+            if ok:
+                picks.add(max(ok, key=ok.get))
+        hits += (disp["Answer"] in picks) / max(len(picks), 1)
+        floor = metres(disp["Candidates"][disp["Answer"]])
+        ok = {k: metres(v) for k, v in path["Candidates"].items() if metres(v) >= floor * 0.999 - 0.011}
+        hits += bool(ok) and min(ok, key=ok.get) == path["Answer"]
+    cell = _cell(t, "keyed_distance_bound", D)
+    assert cell["hits"] == pytest.approx(hits) and cell["significant"]
+    assert hits > 0.6 * 2 * N_RECORDINGS
 
 
 @pytest.mark.parametrize("plant", ["fewest_significant", "last_digit"])

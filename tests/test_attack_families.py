@@ -114,3 +114,23 @@ def test_cli_headline_and_fail_on_significant(tmp_path, capsys):
     assert cap.out.startswith("attack,family,task,source,n_rows,") and cap.err == ""
     assert cli_main(["attack", str(clean), "--families", "colour"]) == 2
     assert "unknown attack family" in capsys.readouterr().err
+
+
+def test_cli_runs_the_keyed_family_when_named(tmp_path, capsys):
+    """``--families keyed`` runs the answer-key readers (the blind suite leaves them out unless named): a
+    release whose converse questions mirror each other's answers is read by keyed_converse, one row of
+    each pair revealing the other (60 pairs: every row)."""
+    from tests.attack_release import N_RECORDINGS, recording_rows
+
+    rows = [r for r in recording_rows("converse", seed=0) if r["Task"] == "Spatial Relation"]
+    for r in rows:
+        r.pop("ReSTI ID")
+    rel = write_release(rows, [], tmp_path / "converse")
+    assert cli_main(["attack", str(rel), "--families", "keyed", "--format", "json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert {r["family"] for r in table} == {"keyed"}
+    cell = next(r for r in table if r["attack"] == "keyed_converse" and r["source"] != "ALL")
+    assert cell["significant"] and cell["hits"] == 2 * N_RECORDINGS
+    # the blind suite (no family named) reads no answer key
+    assert cli_main(["attack", str(rel), "--fast", "--format", "json"]) == 0
+    assert "keyed" not in {r["family"] for r in json.loads(capsys.readouterr().out)}

@@ -104,3 +104,25 @@ def test_task_stages_run_after_the_tasks_they_follow(tmp_path):
     f.write_text(yaml.safe_dump(cfg))
     with pytest.raises(InputError, match="99_release_report runs in wave 2"):
         main_config(f)
+
+
+def test_a_displacement_follows_the_path_length_it_cannot_exceed():
+    """A displacement is at most the path over its window: it follows the path length asked beside it
+    (its own task) or a trajectory description's total, whatever its ratio below the path; its
+    candidates are the path candidates times the answer's ratio (6 m of 10 m: 0.6 of each)."""
+    path = spec("p", "Displacement & Path Length", "path_length", "10.00m")
+    disp = spec("f", "Displacement & Path Length", "displacement", "6.00m")
+    link = find_link(disp, [path], TOL)
+    assert link == Link("f", "p", "path_bound", None, False)
+    out = follow_strings(link, disp, path, ["10.00m", "5.00m", "20.00m", "12.50m", "7.00m"])
+    assert sorted(out) == sorted(["6.00m", "3.00m", "12.00m", "7.50m", "4.20m"])
+    # every candidate lies within exactly the path candidate it was made from, as the answer does
+    assert all(a / b == pytest.approx(0.6) for a, b in zip([3.0, 12.0, 7.5, 4.2], [5.0, 20.0, 12.5, 7.0]))
+    traj = spec("t", "Trajectory Description", "trajectory", "move forward 8.0m, then turn left 30°, then move forward 2.0m")
+    assert find_link(disp, [traj], TOL).relation == "path_bound"
+    # longer than the path (past the 5% tolerance), another window or another recording: no link
+    assert find_link(spec("f", "Displacement & Path Length", "displacement", "10.60m"), [path], TOL) is None
+    assert find_link(spec("f", "Displacement & Path Length", "displacement", "10.40m"), [path], TOL) is not None
+    assert find_link(spec("f", "Displacement & Path Length", "displacement", "6.00m", t0=1.0, t1=5.0), [path],
+                     TOL) is None
+    assert find_link(spec("f", "Displacement & Path Length", "displacement", "6.00m", seq="seg2"), [path], TOL) is None

@@ -4,8 +4,8 @@ Rows of one recording measure one world, so one row's answer often follows from 
 (the attacks of family ``relation`` in :mod:`resti_lib.options.attacks.relation` read those links): a
 box's edge is the length, width or height of its subject asked in another row, a heading change the
 turn sum of a trajectory description over
-the same window, a path length its total distance, a mean speed a distance over the window divided
-by the window. A reader who sees the driver row's five candidates then picks the follower's candidate
+the same window, a path length its total distance (and a displacement at most that), a mean speed a
+distance over the window divided by the window. A reader who sees the driver row's five candidates then picks the follower's candidate
 that matches one of them. Here the follower's distractors are the images of the driver's distractors
 under the relation, anchored at the follower's own answer: candidate ``j`` is the answer moved by the
 driver's candidate ``j`` relative to the driver's answer (a ratio for magnitudes, a difference for
@@ -38,13 +38,20 @@ WINDOW_TOL_REL = 0.01   # ... or this fraction of the window, whichever is large
 #: follower quantity -> (driver quantities, what a driver candidate measures, additive?). A box
 #: follows the dimensions of its subject asked in other rows (its distractors' edges are their
 #: distractors' images; the rest of the box is its own draw): a box's distractors' edges may lie closer
-#: together than a dimension's separation floor allows, a dimension's never do.
+#: together than a dimension's separation floor allows, a dimension's never do. A displacement is at
+#: most the path over its window (``path_bound``, one-sided: :data:`AT_MOST`): its candidates are the
+#: path lengths (or a trajectory's total distances) asked beside it times the answer's own ratio, so
+#: every displacement candidate lies within exactly one path candidate, as the answer within the answer.
 FOLLOWS: dict[str, tuple[tuple[str, ...], str, bool]] = {
     "box": (DIMENSIONS, "box_edge", False),
+    "displacement": (("path_length", "trajectory"), "path_bound", False),
     "heading_change": (("trajectory",), "turn_sum", True),
     "path_length": (("trajectory",), "total_distance", False),
     "speed": (DISTANCES, "per_window", False),
 }
+#: Relations that bound the follower from above (any ratio up to ``relative_tol`` past the driver's
+#: value links), not an equality within ``relative_tol``.
+AT_MOST = frozenset({"path_bound"})
 
 
 def window(o) -> tuple[float, float] | None:
@@ -86,6 +93,10 @@ class Link:
             return turn_sum(v) if isinstance(v, V.Trajectory) else None
         if self.relation == "total_distance":
             return v.total_distance if isinstance(v, V.Trajectory) else None
+        if self.relation == "path_bound":  # a path length's magnitude or a trajectory's total distance
+            if isinstance(v, V.Trajectory):
+                return v.total_distance
+            return abs(float(v.si)) if isinstance(v, V.Scalar) else None
         if self.relation == "per_window":
             return abs(float(v.si)) if isinstance(v, V.Scalar) else None
         return None
@@ -134,7 +145,9 @@ def find_link(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> Link | 
     best: tuple[float, Link] | None = None
     for d in drivers:
         od = d.obs
-        if od.sequence != o.sequence or od.quantity not in quantities or d.task == f.task:
+        # a row of its own task drives only through a bound (a displacement and the path length asked
+        # beside it); an equality within one task is the same quantity asked twice (shared sets)
+        if od.sequence != o.sequence or od.quantity not in quantities or (d.task == f.task and relation not in AT_MOST):
             continue
         wd = window(od)
         if w is None or wd is None or not same_window(w, wd):
@@ -146,7 +159,8 @@ def find_link(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> Link | 
             if r is None:
                 continue
             score = abs(r) / max(deg_tol if additive else rel_tol, 1e-9)
-            if score <= 1.0 and (best is None or score < best[0]):
+            related = r <= rel_tol if relation in AT_MOST else score <= 1.0
+            if related and (best is None or score < best[0]):
                 best = (score, link)
     return None if best is None else best[1]
 
@@ -254,5 +268,5 @@ def residual_offsets(own: float, pool: list[float], rng, tries: int) -> list[np.
     return [p[rng.integers(0, len(p), 4)] - own for _ in range(tries)]
 
 
-__all__ = ["FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings", "grid_offsets",
+__all__ = ["AT_MOST", "FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings", "grid_offsets",
            "residual_offsets", "same_window", "turn_sum", "window"]

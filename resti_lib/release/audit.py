@@ -26,6 +26,7 @@ from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
 from ..options.attacks import attack_table, headline, select
+from ..options.attacks.registry import FAMILIES
 from ..options.structural import residual_ids
 from ..tasks import interface
 from ..tasks import names as task_names
@@ -167,7 +168,8 @@ def attack_release(release: str | Path | Release, *, families="all", attacks="al
             records = [r for i, r in enumerate(records) if str(r.get("ReSTI ID") or i) in keep]
         else:
             evaluate = residual_ids(records, iface, subset)
-    table = attack_table(records, iface=iface, families="all", attacks=names, alpha=alpha, progress=progress,
+    # ``names`` is already the choice (keyed families included when named), so every family is allowed here
+    table = attack_table(records, iface=iface, families=list(FAMILIES), attacks=names, alpha=alpha, progress=progress,
                          evaluate=evaluate) \
         if records else pd.DataFrame(columns=["attack", "family", "task", "source", "n_rows", "coverage", "picked",
                                               "hits", "accuracy", "chance", "p_value", "p_holm", "significant",

@@ -11,6 +11,9 @@ row's value and picks the candidate nearest to a prediction (None where no sibli
   length) over the same window, and the other way round;
 - ``rel_path_length``: the path length over a window is the total distance of a trajectory
   description over the same window, and the other way round;
+- ``rel_distance_bound``: a displacement is never longer than the path length (or trajectory
+  description's total distance) over the same window: the largest displacement within a sibling's path
+  length, and the shortest path within a sibling's displacement;
 - ``rel_box_edge``: a length, width or height is an edge of a sibling's oriented box of the same
   subject noun (any sibling box when none shares it), and a box carries a sibling's dimension;
 - ``rel_pose_track``: a camera pose at a time is interpolated between the sibling poses of the same
@@ -127,6 +130,46 @@ def _path_length(batch: Batch, keyed: bool):
         else:
             continue
         out[i] = _nearest_log(p, preds)
+    return out
+
+
+#: Printing slack of a bound between two printed distances: relative, and absolute in metres (two
+#: decimals of a metre each side).
+BOUND_REL, BOUND_ABS = 1e-3, 0.011
+
+
+def _distance(v) -> float | None:
+    """The distance a candidate states: a scalar's magnitude (SI) or a trajectory's total distance."""
+    if isinstance(v, V.Trajectory):
+        return v.total_distance
+    return abs(float(v.si)) if isinstance(v, V.Scalar) else None
+
+
+def _distance_bound(batch: Batch, keyed: bool):
+    out: list = [None] * len(batch)
+    for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
+        dist = {k: _distance(v) for k, v in p.values.items()}
+        if any(x is None for x in dist.values()):
+            continue
+        if o.quantity == "displacement":  # at most the path over the window: the largest within it
+            bounds = _flat(_window_facts(batch, i, ("path_length", "trajectory"), lambda j: [
+                _distance(a) for a in _facts(batch, j, keyed)]))
+            fits = lambda x, b: x <= b * (1 + BOUND_REL) + BOUND_ABS  # noqa: E731
+            best = max
+        elif o.quantity in ("path_length", "trajectory"):  # at least the displacement: the shortest beyond it
+            bounds = _flat(_window_facts(batch, i, ("displacement",), lambda j: [
+                _distance(a) for a in _facts(batch, j, keyed)]))
+            fits = lambda x, b: x >= b * (1 - BOUND_REL) - BOUND_ABS  # noqa: E731
+            best = min
+        else:
+            continue
+        picks: set = set()
+        for b in (x for x in bounds if x is not None and np.isfinite(x)):
+            ok = {k: x for k, x in dist.items() if fits(x, b)}
+            if ok:
+                target = best(ok.values())
+                picks |= {k for k, x in ok.items() if x == target}
+        out[i] = frozenset(picks) or None
     return out
 
 
@@ -303,6 +346,9 @@ _RELATIONS = (
     ("path_length", ["scalar", "trajectory"], _path_length,
      "path length nearest to the total distance of a sibling trajectory description over the same window, or "
      "trajectory whose total distance is nearest to a sibling path length"),
+    ("distance_bound", ["scalar", "trajectory"], _distance_bound,
+     "largest displacement not longer than a sibling's path length (or trajectory description's total distance) "
+     "over the same window, or shortest path length or trajectory not shorter than a sibling's displacement"),
     ("turn_sum", ["angle", "trajectory"], _turn_sum,
      "heading change nearest to the signed turn sum of a sibling trajectory description over the same window, or "
      "trajectory whose turn sum is nearest to a sibling heading change"),
