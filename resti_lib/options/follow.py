@@ -3,14 +3,14 @@
 Rows of one recording measure one world, so one row's answer often follows from another's by physics
 (the attacks of family ``relation`` in :mod:`resti_lib.options.attacks.relation` read those links): a
 box's edge is the length, width or height of its subject asked in another row, a heading change the
-turn sum of a trajectory description over
-the same window, a path length its total distance (and a displacement at most that), a mean speed a
-distance over the window divided by the window. A reader who sees the driver row's five candidates then picks the follower's candidate
-that matches one of them. Here the follower's distractors are the images of the driver's distractors
-under the relation, anchored at the follower's own answer: candidate ``j`` is the answer moved by the
-driver's candidate ``j`` relative to the driver's answer (a ratio for magnitudes, a difference for
-angles). Every follower candidate then matches exactly one driver candidate, as the answer matches
-the driver's answer, and the relation picks each of the five alike.
+turn sum of a trajectory description over the same window, a path length its total distance (and a
+displacement at most that), a mean speed a distance over the window divided by the window. A reader
+who sees the driver row's five candidates then picks the follower's candidate that matches one of
+them. Here the follower's distractors are the images of the driver's distractors under the relation,
+anchored at the follower's own answer: candidate ``j`` is the answer moved by the driver's candidate
+``j`` relative to the driver's answer (a ratio for magnitudes, a difference for angles). Every
+follower candidate then matches exactly one driver candidate, as the answer matches the driver's
+answer, and the relation picks each of the five alike.
 
 A link exists only where the relation holds for the answers (within ``params/options.yaml``
 ``follow``): a sibling that measures something else is left alone. The follower's set must still meet
@@ -268,5 +268,5 @@ def residual_offsets(own: float, pool: list[float], rng, tries: int) -> list[np.
     return [p[rng.integers(0, len(p), 4)] - own for _ in range(tries)]
 
 
-__all__ = ["AT_MOST", "FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings", "grid_offsets",
-           "residual_offsets", "same_window", "turn_sum", "window"]
+__all__ = ["AT_MOST", "FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings",
+           "grid_offsets", "residual_offsets", "same_window", "turn_sum", "window"]
