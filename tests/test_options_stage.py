@@ -586,3 +586,55 @@ def test_adversarial_filter_redraws_the_rows_a_discriminator_identifies():
             assert r["Candidates"] == by_id[r["ReSTI ID"]]["Candidates"]
         p = parse_row(r, r["ReSTI ID"], on)
         assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["plausible_given_question"](p) is None
+
+
+def test_pose_distractors_lean_as_the_answers_lean():
+    """Hand-held cameras of a scan stay nearly level (roll within a degree) while they turn and tilt: a
+    distractor that rolls is one a reader who knows cameras are level strikes off (the outside review's
+    reader: the candidate whose camera x axis is nearest horizontal, smallest |r31|). The tilts are
+    drawn from level in world axes, so the distractors roll as little as the answers do. Counted a
+    second way from the printed entries."""
+    rng = np.random.default_rng(11)
+    rows = []
+
+    def camera(yaw, pitch):  # OpenCV axes (+X right, +Y down, +Z forward), world +Z up, roll within 1 deg
+        return Rotation.from_euler("ZYX", [yaw, rng.normal(0, 1.0), -90 + pitch], degrees=True).as_matrix()
+
+    for i in range(200):
+        yaw, pitch = rng.uniform(-180, 180), rng.normal(-15, 10)
+        P, T = np.eye(4), np.eye(4)
+        P[:3, :3], P[:3, 3] = camera(yaw, pitch), rng.uniform(0, 6, 3)
+        T[:3, :3] = camera(yaw + rng.normal(0, 40), pitch + rng.normal(0, 8))
+        T[:3, 3] = P[:3, 3] + rng.normal(0, 0.6, 3)
+        ptxt = V.format_pose(P, 2, compact=True)
+        q = (f"Given the initial pose: {ptxt}, estimate and select the most likely camera pose at t=47 s in the same "
+             "coordinate frame, using only the RGB video.")
+        rows.append(_row(i, "Pose Estimation", "ScanNet", q, V.format_pose(T, 2, compact=True),
+                         video=f"scene{i:04d}_00.mp4", t0=47.0, t1=47.0))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+    r31 = lambda s: abs(float(json.loads(s)["r31"]))  # noqa: E731  the printed entry
+    hits, answers, distractors = 0.0, [], []
+    for r in out:
+        v = {L: r31(s) for L, s in r["Candidates"].items()}
+        tie = [L for L in v if v[L] == min(v.values())]
+        hits += (r["Answer"] in tie) / len(tie)
+        answers.append(v[r["Answer"]])
+        distractors += [x for L, x in v.items() if L != r["Answer"]]
+    assert binomtest(int(round(hits)), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+    assert np.median(distractors) <= 1.5 * max(np.median(answers), 0.01)
+
+
+def test_yaw_tilt_heading_and_lean_by_hand():
+    """yaw_tilt reads a rotation as its heading about world up and two tilts: a level OpenCV camera
+    turned 30 deg about +Z has heading 30 deg and tilts 0 and -90 deg (its +Z forward lies flat);
+    turning it about the vertical changes only the heading; and from_yaw_tilt gives the rotation back,
+    for another up axis too."""
+    from resti_lib.geometry.fields import from_yaw_tilt, yaw_tilt
+
+    level = Rotation.from_euler("z", 30, degrees=True).as_matrix() @ Rotation.from_euler("x", -90, degrees=True).as_matrix()
+    assert np.degrees(yaw_tilt(level, [0, 0, 1])) == pytest.approx([30.0, 0.0, -90.0], abs=1e-9)
+    turned = Rotation.from_euler("z", 25, degrees=True).as_matrix() @ level
+    assert np.degrees(yaw_tilt(turned, [0, 0, 1])) == pytest.approx([55.0, 0.0, -90.0], abs=1e-9)
+    for R in Rotation.random(20, random_state=3).as_matrix():
+        for up in ([0, 0, 1], [0, 1, 0], [0.1, -0.2, 0.97]):
+            assert from_yaw_tilt(yaw_tilt(R, up), up) == pytest.approx(R, abs=1e-12)

@@ -51,6 +51,34 @@ def heading_deg(R, up, col: int) -> float:
     return float(np.degrees(np.arctan2(v @ e2, v @ e1)))
 
 
+def _up_alignment(up) -> np.ndarray:
+    """The rotation that takes the world ``up`` axis to +Z (identity for +Z up)."""
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    if np.allclose(up, [0.0, 0.0, 1.0]):
+        return np.eye(3)
+    return Rotation.align_vectors([[0.0, 0.0, 1.0]], [up])[0].as_matrix()
+
+
+def yaw_tilt(R, up) -> np.ndarray:
+    """A rotation as its heading about the world ``up`` axis and two gravity-referenced tilt angles
+    (radians): the intrinsic z-y-x angles of ``R`` in a world frame with ``up`` as +Z. The tilts say
+    how far the camera leans from level (for a camera they are its pitch and roll, in its own axis
+    convention); the heading alone changes as it turns about the vertical."""
+    A = _up_alignment(up)
+    return Rotation.from_matrix(A @ nearest_rotation(np.asarray(R, float))).as_euler("ZYX")
+
+
+def from_yaw_tilt(angles, up) -> np.ndarray:
+    """The rotation of :func:`yaw_tilt` angles (its inverse)."""
+    A = _up_alignment(up)
+    return A.T @ Rotation.from_euler("ZYX", np.asarray(angles, float)).as_matrix()
+
+
+def wrap_rad(x):
+    """Angles wrapped to [-pi, pi)."""
+    return (np.asarray(x, float) + np.pi) % (2 * np.pi) - np.pi
+
+
 def horizontal_frame(R, up, col: int = 2) -> np.ndarray:
     """Columns: horizontal forward (column ``col`` projected), left, up — a premise's heading frame."""
     up = np.asarray(up, float) / np.linalg.norm(up)

@@ -4,10 +4,18 @@ rotation), cameras relative to a reference around their gaze point."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ... import values as V
-from ...geometry.fields import from_gaze_fields, gaze_depth, gaze_fields, horizontal_frame, rotation_preimage
+from ...geometry.fields import (
+    from_gaze_fields,
+    from_yaw_tilt,
+    gaze_depth,
+    gaze_fields,
+    horizontal_frame,
+    rotation_preimage,
+    wrap_rad,
+    yaw_tilt,
+)
 from ...geometry.frames import nearest_rotation
 from ...rng import row_rng
 from ..plan import GroupModel, Reject, RowPlan, log_window, recorded_decimals
@@ -52,9 +60,11 @@ class PoseKind(KindBuilder):
     def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
         """Poses as a motion from the premise: the translation in the premise's horizontal heading
         frame (forward, left, up; a rate over the window for vehicles; signed by the direction of time,
-        :func:`time_sign`) and the rotation vector of the
-        relative rotation ``R R_p^T``, jointly. A question without a printed premise (the reference
-        camera as the identity) has the identity as premise."""
+        :func:`time_sign`), the turn about the vertical from the premise's heading (signed likewise)
+        and the camera's two tilts from level (:func:`~resti_lib.geometry.fields.yaw_tilt`: gravity-
+        referenced, not relative to the premise, so a distractor leans as the group's answers lean and
+        a level camera among tilted ones is no tell), jointly. A question without a printed premise
+        (the reference camera as the identity) has the identity as premise."""
         kp = st.params["kinds"]["pose"]
         src = ps[0].spec.source
         up = np.asarray(kp["world_up"], float)
@@ -64,6 +74,9 @@ class PoseKind(KindBuilder):
         info["relative"] = relative
         col = heading_axis([p.spec.obs.premise for p in ps if p.spec.obs.premise_text is not None], up)
         info["heading_axis"] = col
+        # the second tilt is centred on the group's circular mean (an OpenCV camera's is near -90 deg)
+        tilts = np.array([yaw_tilt(p.spec.value.R, up)[2] for p in ps])
+        info["tilt_ref"] = float(np.arctan2(np.sin(tilts).mean(), np.cos(tilts).mean())) if len(tilts) else 0.0
         ts = np.array([p.spec.value.t for p in ps], float)
         info["t_decimals"] = [recorded_decimals(ts[:, j], ps[0].spec.decimals) for j in range(3)]
         F, Hh, W = [], [], []
@@ -85,8 +98,7 @@ class PoseKind(KindBuilder):
             h_t = 0.5 * 10.0 ** -v.decimals
             if not relative:
                 d = Hf.T @ (np.array(v.t, float) - tp) / scale
-                r = sign * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()
-                F.append([*d, *r])
+                F.append([*d, *self.rotation_fields(R0, Rp, sign, up, info["tilt_ref"])])
                 Hh.append([h_t / abs(scale)] * 3 + [h_t] * 3)
             W.append([log_window(p.spec)])
         if relative:  # cameras looking at a desk: drawn around the gaze point they share
@@ -108,8 +120,20 @@ class PoseKind(KindBuilder):
                             knn=st.model["knn"], shrink=st.model["copula_shrink"],
                             min_rows=int(st.model["min_group"]),
                             prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
-                                      [0.5, 0.5, 0.2, 0.1, 0.1, 0.3] if not rate else [3.0, 1.0, 0.2, 0.1, 0.1, 0.3]))
+                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [3.0, 1.0, 0.2, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
+
+    @staticmethod
+    def rotation_fields(R, Rp, sign: float, up, tilt_ref: float) -> list[float]:
+        """A rotation's fields: its turn about the vertical from the premise ``Rp`` (signed by the
+        direction of time) and its two tilts from level (the second about ``tilt_ref``), radians."""
+        a, b, c = yaw_tilt(R, up)
+        return [float(sign * wrap_rad(a - yaw_tilt(Rp, up)[0])), float(b), float(wrap_rad(c - tilt_ref))]
+
+    @staticmethod
+    def rotation_of(fields, Rp, sign: float, up, tilt_ref: float) -> np.ndarray:
+        """The rotation of :meth:`rotation_fields` (its inverse)."""
+        return from_yaw_tilt([yaw_tilt(Rp, up)[0] + sign * fields[0], fields[1], fields[2] + tilt_ref], up)
 
     def build(self, st, p, gm, s, rng, strict, reveals):
         spec = p.spec
@@ -143,12 +167,13 @@ class PoseKind(KindBuilder):
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         elif n_draw:
             Rp, tp, Hf = info["frame"][p.rid]
-            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, sign * Rotation.from_matrix(R0 @ Rp.T).as_rotvec()])
+            up = np.asarray(st.params["kinds"]["pose"]["world_up"], float)
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, self.rotation_fields(R0, Rp, sign, up, info["tilt_ref"])])
             hh = [h_t / abs(scale)] * 3 + [h_t] * 3
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
-                T[:3, :3] = Rotation.from_rotvec(sign * b[3:6]).as_matrix() @ Rp
+                T[:3, :3] = self.rotation_of(b[3:6], Rp, sign, up, info["tilt_ref"])
                 t = tp + Hf @ (b[:3] * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
