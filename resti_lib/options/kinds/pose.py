@@ -54,8 +54,9 @@ def heading_axis(premises: list, up) -> int:
 
 @register_kind("pose")
 class PoseKind(KindBuilder):
-    """Poses: a motion from the premise pose (translation in the premise's heading frame and a
-    relative rotation), cameras relative to a reference around their gaze point."""
+    """Poses: a motion from the premise pose (translation in the premise's heading frame, a turn about
+    the vertical and the camera's tilts from level), cameras relative to a reference around their
+    gaze point."""
 
     def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
         """Poses as a motion from the premise: the translation in the premise's horizontal heading
