@@ -74,11 +74,6 @@ def from_yaw_tilt(angles, up) -> np.ndarray:
     return A.T @ Rotation.from_euler("ZYX", np.asarray(angles, float)).as_matrix()
 
 
-def wrap_rad(x):
-    """Angles wrapped to [-pi, pi)."""
-    return (np.asarray(x, float) + np.pi) % (2 * np.pi) - np.pi
-
-
 def horizontal_frame(R, up, col: int = 2) -> np.ndarray:
     """Columns: horizontal forward (column ``col`` projected), left, up — a premise's heading frame."""
     up = np.asarray(up, float) / np.linalg.norm(up)

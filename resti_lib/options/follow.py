@@ -71,6 +71,13 @@ def turn_sum(v: V.Trajectory) -> float:
     return float(sum(x for k, x in v.segments if k == "turn"))
 
 
+def distance_of(v) -> float | None:
+    """The distance a value states: a scalar's magnitude (SI) or a trajectory's total distance."""
+    if isinstance(v, V.Trajectory):
+        return v.total_distance
+    return abs(float(v.si)) if isinstance(v, V.Scalar) else None
+
+
 def circular(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
@@ -94,9 +101,7 @@ class Link:
         if self.relation == "total_distance":
             return v.total_distance if isinstance(v, V.Trajectory) else None
         if self.relation == "path_bound":  # a path length's magnitude or a trajectory's total distance
-            if isinstance(v, V.Trajectory):
-                return v.total_distance
-            return abs(float(v.si)) if isinstance(v, V.Scalar) else None
+            return distance_of(v)
         if self.relation == "per_window":
             return abs(float(v.si)) if isinstance(v, V.Scalar) else None
         return None
@@ -268,5 +273,5 @@ def residual_offsets(own: float, pool: list[float], rng, tries: int) -> list[np.
     return [p[rng.integers(0, len(p), 4)] - own for _ in range(tries)]
 
 
-__all__ = ["AT_MOST", "FOLLOWS", "Link", "circular", "find_box_links", "find_link", "follow_box", "follow_strings",
+__all__ = ["AT_MOST", "FOLLOWS", "Link", "circular", "distance_of", "find_box_links", "find_link", "follow_box", "follow_strings",
            "grid_offsets", "residual_offsets", "same_window", "turn_sum", "window"]

@@ -25,8 +25,7 @@ from .. import LETTERS, paths
 from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
-from ..options.attacks import attack_table, headline, select
-from ..options.attacks.registry import FAMILIES
+from ..options.attacks import FAMILIES, attack_table, headline, select
 from ..options.structural import residual_ids
 from ..tasks import interface
 from ..tasks import names as task_names

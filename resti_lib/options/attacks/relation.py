@@ -33,7 +33,7 @@ from collections import Counter, defaultdict
 import numpy as np
 
 from ... import values as V
-from ..follow import DIMENSIONS, DISTANCES, circular, same_window, turn_sum, window
+from ..follow import DIMENSIONS, DISTANCES, circular, distance_of, same_window, turn_sum, window
 from .batch import Batch
 from .common import top
 from .features import premise_parts, rot_angle
@@ -69,7 +69,7 @@ def _nearest_log(p, predictions: list) -> frozenset | None:
     lp = np.log(preds)
     scores = {}
     for k, v in p.values.items():
-        x = v.total_distance if isinstance(v, V.Trajectory) else (abs(v.si) if isinstance(v, V.Scalar) else None)
+        x = distance_of(v)
         scores[k] = -float(np.min(np.abs(np.log(x) - lp))) if x and x > 0 else -np.inf
     return top(scores)
 
@@ -138,27 +138,20 @@ def _path_length(batch: Batch, keyed: bool):
 BOUND_REL, BOUND_ABS = 1e-3, 0.011
 
 
-def _distance(v) -> float | None:
-    """The distance a candidate states: a scalar's magnitude (SI) or a trajectory's total distance."""
-    if isinstance(v, V.Trajectory):
-        return v.total_distance
-    return abs(float(v.si)) if isinstance(v, V.Scalar) else None
-
-
 def _distance_bound(batch: Batch, keyed: bool):
     out: list = [None] * len(batch)
     for i, (p, o) in enumerate(zip(batch.rows, batch.obs)):
-        dist = {k: _distance(v) for k, v in p.values.items()}
+        dist = {k: distance_of(v) for k, v in p.values.items()}
         if any(x is None for x in dist.values()):
             continue
         if o.quantity == "displacement":  # at most the path over the window: the largest within it
             bounds = _flat(_window_facts(batch, i, ("path_length", "trajectory"), lambda j: [
-                _distance(a) for a in _facts(batch, j, keyed)]))
+                distance_of(a) for a in _facts(batch, j, keyed)]))
             fits = lambda x, b: x <= b * (1 + BOUND_REL) + BOUND_ABS  # noqa: E731
             best = max
         elif o.quantity in ("path_length", "trajectory"):  # at least the displacement: the shortest beyond it
             bounds = _flat(_window_facts(batch, i, ("displacement",), lambda j: [
-                _distance(a) for a in _facts(batch, j, keyed)]))
+                distance_of(a) for a in _facts(batch, j, keyed)]))
             fits = lambda x, b: x >= b * (1 - BOUND_REL) - BOUND_ABS  # noqa: E731
             best = min
         else:

@@ -13,7 +13,6 @@ from ...geometry.fields import (
     gaze_fields,
     horizontal_frame,
     rotation_preimage,
-    wrap_rad,
     yaw_tilt,
 )
 from ...geometry.frames import nearest_rotation
@@ -95,11 +94,11 @@ class PoseKind(KindBuilder):
                 Hf = horizontal_frame(Rp, up, col)
             else:  # relative poses: the reference camera is the identity
                 Rp, tp, Hf = np.eye(3), np.zeros(3), np.eye(3)
-            info["frame"][p.rid] = (Rp, tp, Hf)
+            info["frame"][p.rid] = (Rp, tp, Hf, float(yaw_tilt(Rp, up)[0]))
             h_t = 0.5 * 10.0 ** -v.decimals
             if not relative:
                 d = Hf.T @ (np.array(v.t, float) - tp) / scale
-                F.append([*d, *self.rotation_fields(R0, Rp, sign, up, info["tilt_ref"])])
+                F.append([*d, *self.rotation_fields(R0, info["frame"][p.rid][3], sign, up, info["tilt_ref"])])
                 Hh.append([h_t / abs(scale)] * 3 + [h_t] * 3)
             W.append([log_window(p.spec)])
         if relative:  # cameras looking at a desk: drawn around the gaze point they share
@@ -125,16 +124,18 @@ class PoseKind(KindBuilder):
         return GroupModel("pose", fm, info)
 
     @staticmethod
-    def rotation_fields(R, Rp, sign: float, up, tilt_ref: float) -> list[float]:
-        """A rotation's fields: its turn about the vertical from the premise ``Rp`` (signed by the
-        direction of time) and its two tilts from level (the second about ``tilt_ref``), radians."""
+    def rotation_fields(R, premise_yaw: float, sign: float, up, tilt_ref: float) -> list[float]:
+        """A rotation's fields: its turn about the vertical from the premise's heading ``premise_yaw``
+        (signed by the direction of time) and its two tilts from level (the second about
+        ``tilt_ref``), radians."""
         a, b, c = yaw_tilt(R, up)
-        return [float(sign * wrap_rad(a - yaw_tilt(Rp, up)[0])), float(b), float(wrap_rad(c - tilt_ref))]
+        turn, lean = np.radians(V.wrap_degrees(np.degrees([a - premise_yaw, c - tilt_ref])))
+        return [float(sign * turn), float(b), float(lean)]
 
     @staticmethod
-    def rotation_of(fields, Rp, sign: float, up, tilt_ref: float) -> np.ndarray:
+    def rotation_of(fields, premise_yaw: float, sign: float, up, tilt_ref: float) -> np.ndarray:
         """The rotation of :meth:`rotation_fields` (its inverse)."""
-        return from_yaw_tilt([yaw_tilt(Rp, up)[0] + sign * fields[0], fields[1], fields[2] + tilt_ref], up)
+        return from_yaw_tilt([premise_yaw + sign * fields[0], fields[1], fields[2] + tilt_ref], up)
 
     def build(self, st, p, gm, s, rng, strict, reveals):
         spec = p.spec
@@ -167,14 +168,14 @@ class PoseKind(KindBuilder):
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         elif n_draw:
-            Rp, tp, Hf = info["frame"][p.rid]
+            _, tp, Hf, yaw_p = info["frame"][p.rid]
             up = np.asarray(st.params["kinds"]["pose"]["world_up"], float)
-            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, self.rotation_fields(R0, Rp, sign, up, info["tilt_ref"])])
+            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, self.rotation_fields(R0, yaw_p, sign, up, info["tilt_ref"])])
             hh = [h_t / abs(scale)] * 3 + [h_t] * 3
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
-                T[:3, :3] = self.rotation_of(b[3:6], Rp, sign, up, info["tilt_ref"])
+                T[:3, :3] = self.rotation_of(b[3:6], yaw_p, sign, up, info["tilt_ref"])
                 t = tp + Hf @ (b[:3] * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
