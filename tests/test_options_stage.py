@@ -588,6 +588,104 @@ def test_adversarial_filter_redraws_the_rows_a_discriminator_identifies():
         assert ROW_CHECKS["separation"](p) is None and ROW_CHECKS["plausible_given_question"](p) is None
 
 
+def test_object_speeds_are_not_drawn_from_the_cameras():
+    """Waymo asks the average velocity of the camera (a driving car, about 8 m/s) and of objects, half of
+    them parked (0.006-0.05 m/s: printed 0.01-0.05) and half driving. Drawn from one population of
+    both, an object's distractors fill the speeds between the two modes, where no object is: a reader
+    who knows the objects' speeds (the true density of log speed) takes the candidate it finds most
+    probable. The camera's and the objects' magnitudes are separate populations, so that reader is
+    at chance, and few distractors fall between the modes (old code: 0.50 of 120, p 9e-13)."""
+    rng = np.random.default_rng(5)
+    rows, objects = [], set()
+    for i in range(240):
+        t0, w = float(np.round(rng.uniform(1, 10), 1)), float(np.round(rng.uniform(1, 6), 1))
+        if i % 2 == 0:
+            q = (f"What is the magnitude of the camera's average velocity between t={t0:g} s and t={t0 + w:g} s, "
+                 "computed as straight-line endpoint displacement divided by elapsed time? (unit: m/s)")
+            v = float(np.exp(rng.normal(math.log(8.0), 0.4)))
+        else:
+            noun = ("suv", "sedan", "truck", "van")[i % 4 // 2 + 2 * (i % 3 == 0)]
+            q = (f"What is the magnitude of the average velocity (displacement divided by elapsed time) of the "
+                 f"{noun} between t={t0:g} s and t={t0 + w:g} s? (unit: m/s)")
+            v = float(rng.uniform(0.006, 0.05)) if rng.random() < 0.5 else float(np.exp(rng.normal(math.log(8.0), 0.4)))
+            objects.add(f"r{i}")
+        rows.append(_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(v, "m/s"),
+                         video=f"seg{i}_camera_1.mp4", t0=t0, t1=t0 + w))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+
+    def density(x):  # the objects' true density of log speed
+        lx = math.log(max(x, 1e-4))
+        parked = 0.5 / (math.log(0.05) - math.log(0.006)) if math.log(0.005) <= lx <= math.log(0.055) else 0.0
+        return parked + 0.5 * norm.pdf(lx, math.log(8.0), 0.4)
+
+    hits, between = 0.0, 0
+    for r in out:
+        if r["ReSTI ID"] not in objects:
+            continue
+        d = {L: density(V.parse(s).value) for L, s in r["Candidates"].items()}
+        top = [L for L in d if d[L] == max(d.values())]
+        hits += (r["Answer"] in top) / len(top)
+        between += sum(0.1 < V.parse(s).value < 3 for L, s in r["Candidates"].items() if L != r["Answer"])
+    assert binomtest(int(round(hits)), len(objects), 0.2, alternative="greater").pvalue > 0.01, hits / len(objects)
+    assert between <= 0.15 * 4 * len(objects)
+
+
+def test_adversarial_filter_names_a_leak_its_redraws_keep():
+    """Redrawing the rows an attack got right leaves its misses: the cell then looks at chance whether
+    the generator leaks or not. Two planted readers name the answer of the same 30 of 120 rows (every
+    fourth row) in the first draw. One reads it from the row itself (as a premise printing its answer
+    would): it names the answer again after any redraw, so the filter must stop with ``draw leaks``
+    and name its cells, the 30 redrawn rows all hit. The other reads it from the first draw only
+    (after a redraw it takes the largest candidate): the redrawn rows are at chance and the filter
+    stops ``at chance`` with no leak named."""
+    from resti_lib.options.attacks import ATTACKS, attack
+    from resti_lib.options.spec import Interface, deep_merge
+    from resti_lib.release.reoption import filter_summary
+
+    rows, _ = _displacement_rows(n=120, seed=4)
+    chosen = {f"r{i}" for i in range(0, 120, 4)}
+    off = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 0}}), IFACE.tasks)
+    first = {r["ReSTI ID"]: r["Candidates"] for r in build_options(iface=off, records=rows, seed=0)[0]}
+
+    def row_tell(p):
+        return frozenset(p.answer) if str(p.rid) in chosen else None
+
+    def draw_tell(p):
+        if str(p.rid) not in chosen:
+            return None
+        if p.candidates == first[str(p.rid)]:
+            return frozenset(p.answer)
+        top = max(V.parse(s).value for s in p.candidates.values())
+        return frozenset(L for L, s in p.candidates.items() if V.parse(s).value == top)
+
+    logs = {}
+    for name, fn in (("test_row_tell", row_tell), ("test_draw_tell", draw_tell)):
+        attack(name, ["scalar"], "planted")(fn)
+        try:
+            on = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 4, "attacks": [name]}}), IFACE.tasks)
+            out, ev, _ = build_options(iface=on, records=rows, seed=0)
+        finally:
+            ATTACKS.pop(name)
+        logs[name] = (ev.attrs["adversarial"], out)
+    log, _ = logs["test_row_tell"]
+    assert log[0]["identified"] == 30 and log[0]["redrawn"] == 30
+    assert log[1]["stopped"] == "draw leaks" and log[1]["redrawn_rows_checked"] == 30
+    assert {(c["attack"], c["source"], c["hits"], c["n"]) for c in log[1]["draw_leaks"]} == {
+        ("test_row_tell", "Waymo", 30.0, 30), ("test_row_tell", "ALL", 30.0, 30)}
+    line = filter_summary(log)  # what `resti reoption` prints
+    assert "stopped: draw leaks" in line and "Displacement & Path Length/Waymo test_row_tell 30/30" in line
+    log, out = logs["test_draw_tell"]
+    # the largest candidate of each redrawn row, counted from the shipped strings
+    top_hits = 0
+    for r in out:
+        if r["ReSTI ID"] in chosen:
+            v = {L: V.parse(s).value for L, s in r["Candidates"].items()}
+            top_hits += v[r["Answer"]] == max(v.values())
+    assert top_hits <= 10  # near a fifth of 30
+    assert log[0]["identified"] == 30
+    assert log[-1]["stopped"] == "at chance" and all("draw_leaks" not in rec for rec in log)
+
+
 def test_pose_distractors_lean_as_the_answers_lean():
     """Hand-held cameras of a scan stay nearly level (roll within a degree) while they turn and tilt: a
     distractor that rolls is one a reader who knows cameras are level strikes off (the outside review's

@@ -58,6 +58,11 @@ class Observables:
     premise_time: float | None = None
     reference: str | None = None  # what a relation is relative to ("relative to the X, is the Y")
 
+    @property
+    def is_camera(self) -> bool:
+        """The question asks about the camera (not an object it sees)."""
+        return self.subject_class == "camera"
+
     def to_dict(self) -> dict:
         return {"quantity": self.quantity, "window_s": self.window_s, "subject": self.subject,
                 "subject_class": self.subject_class, "sequence": self.sequence, "camera": self.camera,

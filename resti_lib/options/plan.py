@@ -101,7 +101,7 @@ def share_key(spec: OptionSpec) -> tuple:
     o = spec.obs
     window = None if o.window_s is None else round(float(o.window_s), 3)
     subject = " ".join(str(o.subject or "").lower().split())
-    recording = o.sequence if o.subject_class == "camera" else None
+    recording = o.sequence if o.is_camera else None
     return (spec.task, spec.source, o.quantity, subject, recording, window, o.premise_text, spec.detail)
 
 
@@ -146,7 +146,7 @@ def slot_subgroup(spec: OptionSpec) -> tuple:
     an object, over a window or at an instant — so the slot string is not the answer more often in
     one kind of question than another."""
     o = spec.obs
-    return (o.quantity, o.subject_class == "camera", o.window_s is None)
+    return (o.quantity, o.is_camera, o.window_s is None)
 
 
 def recorded_decimals(values, max_decimals: int) -> int:
@@ -162,9 +162,11 @@ def recorded_decimals(values, max_decimals: int) -> int:
 
 def group_key(spec: OptionSpec) -> str:
     o = spec.obs
-    if spec.kind == "scalar":  # questions at an instant and over an interval are told apart
+    if spec.kind == "scalar":  # questions at an instant and over an interval, of the camera and of an
+        # object are told apart (a parked car's speed is not a slow camera's)
         form = "instant" if spec.obs.time_start is not None and spec.obs.time_start == spec.obs.time_end else "interval"
-        return f"{spec.task}|{spec.source}|{spec.unit}|{form}"
+        role = "camera" if o.is_camera else "object"
+        return f"{spec.task}|{spec.source}|{spec.unit}|{form}|{role}"
     if spec.kind == "angle":
         return f"{spec.task}|{spec.source}|{o.quantity}"
     if spec.kind == "pose":

@@ -115,7 +115,7 @@ class Stage:
         for g in sorted(by_group):
             ps = by_group[g]
             if ps[0].spec.kind in ("scalar", "angle") and len(ps) < small:
-                pooled = f"{ps[0].spec.task}|*|{ps[0].spec.unit}|{g.rsplit('|', 1)[-1]}"
+                pooled = f"{ps[0].spec.task}|*|{ps[0].spec.unit}|{g.split('|', 3)[-1]}"
                 for p in ps:
                     p.group = pooled
                 by_group[pooled].extend(ps)
@@ -395,10 +395,28 @@ class Stage:
         again, at most ``rounds`` times (the work, and so the time, is bounded by the rounds, not by a
         clock: the same input gives the same bytes on any machine). A round that would redraw more than
         ``max_redrawn_share`` of the rows stops the filter (the draw itself then leaks, which redrawing
-        cannot mend; the record says so). Returns one record per round."""
+        cannot mend; the record says so).
+
+        Redrawing the rows an attack got right leaves its misses, so a cell can look at chance while the
+        generator still leaks. Each check after a redraw therefore also scores the rows drawn again
+        by the last round on their own (a fresh sample of the generator, whatever picked them), in the
+        cells that named them (Holm over those cells); where they are still significant, the filter
+        stops with ``draw leaks`` and names the cells (``draw_leaks``): redrawing hides such a leak,
+        it does not mend it. Returns one record per round."""
         from scipy.stats import binom
 
         from .attacks import parse_rows, run_picks
+        from .attacks.scoring import holm
+
+        def scored(picks: pd.DataFrame) -> pd.DataFrame:
+            cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
+                n=("hit", "size"), hits=("hit", "sum"))
+            cells["p"] = binom.sf(np.ceil(cells["hits"].to_numpy()) - 1, cells["n"].to_numpy(), 0.2)
+            return cells
+
+        def named(cells: pd.DataFrame, keys) -> list[dict]:
+            return [{"attack": a, "direction": d, "task": tk, "source": s, "hits": float(cells.loc[(a, d, tk, s), "hits"]),
+                     "n": int(cells.loc[(a, d, tk, s), "n"])} for a, d, tk, s in sorted(keys)]
 
         af = self.params.get("adversarial") or {}
         rounds, alpha = int(af.get("rounds", 0)), float(af.get("alpha", 0.05))
@@ -407,6 +425,8 @@ class Stage:
         log: list[dict] = []
         checked: dict[str, pd.DataFrame] = {}  # the last picks of each task
         dirty: set | None = None  # tasks with rows drawn again since their last check (None: all)
+        fresh: set[str] = set()  # the rows the last round drew again
+        named_last: set = set()  # the cells that named them
         for rnd in range(rounds):
             rows = []
             for p, r in zip(self.plans, self.records):
@@ -431,19 +451,18 @@ class Stage:
             picks = picks.assign(direction=picks["direction"].fillna("").astype(str))
             # every task's rows pooled over its sources too (a leak can be too thin to see per source)
             picks = pd.concat([picks, picks.assign(source="ALL")], ignore_index=True)
-            cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
-                n=("hit", "size"), hits=("hit", "sum"))
-            cells["p"] = binom.sf(np.ceil(cells["hits"].to_numpy()) - 1, cells["n"].to_numpy(), 0.2)
-            order = np.argsort(cells["p"].to_numpy(), kind="stable")
-            m = len(cells)
-            significant = set()
-            for k, idx in enumerate(order):  # Holm's step-down over the cells
-                if cells["p"].iloc[idx] > alpha / (m - k):
+            cells = scored(picks)
+            significant = {k for k, sig in zip(cells.index, holm(cells["p"], alpha)) if sig}
+            record = {"round": rnd + 1, "cells_checked": int(len(cells)), "significant_cells": named(cells, significant)}
+            if fresh and named_last:  # the rows drawn again last round, on their own
+                again = scored(picks[picks["rid"].astype(str).isin(fresh)])
+                again = again[again.index.isin(sorted(named_last))]
+                leaks = {k for k, sig in zip(again.index, holm(again["p"], alpha)) if sig}
+                record["redrawn_rows_checked"] = len(fresh)
+                if leaks:
+                    record.update({"draw_leaks": named(again, leaks), "stopped": "draw leaks"})
+                    log.append(record)
                     break
-                significant.add(cells.index[idx])
-            record = {"round": rnd + 1, "cells_checked": int(m), "significant_cells": [
-                {"attack": a, "direction": d, "task": tk, "source": s, "hits": float(cells.loc[(a, d, tk, s), "hits"]),
-                 "n": int(cells.loc[(a, d, tk, s), "n"])} for a, d, tk, s in sorted(significant)]}
             if not significant or rnd == rounds - 1:  # at chance, or the last check: nothing is redrawn after it
                 record["stopped"] = "at chance" if not significant else "rounds"
                 log.append(record)
@@ -457,6 +476,7 @@ class Stage:
                 break
             redrawn, changed = self._redraw(identified, built, failed, rnd + 1)
             dirty = {self.by_id[rid].spec.task for rid in changed}
+            fresh, named_last = {str(r) for r in changed}, significant
             record.update({"identified": len(identified), "redrawn": redrawn})
             log.append(record)
             if not redrawn:

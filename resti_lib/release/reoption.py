@@ -197,6 +197,22 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
     return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0, leaks, subset, dropped)
 
 
+def filter_summary(log: list[dict]) -> str:
+    """One line on the adversarial filter's rounds (``reoption.adversarial_filter`` in ``release.json``):
+    checks, rows drawn again, why it stopped, and the cells where the redrawn rows still leak."""
+    if not log:
+        return "adversarial filter: off"
+    redrawn = sum(int(r.get("redrawn", 0)) for r in log)
+    last = log[-1]
+    line = f"adversarial filter: {len(log)} checks, {redrawn} rows drawn again, stopped: {last.get('stopped', '?')}"
+    leaks = last.get("draw_leaks") or []
+    if leaks:
+        line += " (the draw itself leaks; redrawn rows alone: " + "; ".join(
+            f"{c['task']}/{c['source']} {c['attack']}{' ' + c['direction'] if c['direction'] else ''} "
+            f"{c['hits']:g}/{c['n']}" for c in leaks) + ")"
+    return line
+
+
 # ------------------------------------------------------------------------------------ audit
 
 def attack_tables(before: list[dict], after: list[dict], *, alpha: float = 0.05,
@@ -341,7 +357,7 @@ def preserved_fields_check(before: list[dict], after: list[dict]) -> list[str]:
     return problems
 
 
-__all__ = ["DEFAULT_RELEASE", "ReoptionError", "ReoptionResult", "attack_tables", "before_after_figure",
+__all__ = ["DEFAULT_RELEASE", "ReoptionError", "ReoptionResult", "attack_tables", "before_after_figure", "filter_summary",
            "check_input", "label_balance",
            "preserved_fields_check", "reoption_records", "reoption_release", "side_by_side",
            "strongest_by_task", "value_reuse", "write_audit"]

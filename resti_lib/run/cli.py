@@ -81,7 +81,7 @@ def _cmd_attack(a) -> int:
 
 
 def _cmd_reoption(a) -> int:
-    from ..release.reoption import reoption_release
+    from ..release.reoption import filter_summary, reoption_release
     from .notebooks import load_params
 
     params = load_params(a.params) if a.params else {}
@@ -102,6 +102,7 @@ def _cmd_reoption(a) -> int:
           + (f", {new} rows excluded (no_valid_options: no options meet the constraints)" if new else "")
           + f", seed {seed}, {res.seconds:.1f} s; verify: {'PASSED' if res.validation['passed'] else 'FAILED'}")
     print("answer letters: " + " ".join(f"{k}={n}" for k, n in res.meta["answer_letters"].items()))
+    print(filter_summary(res.meta["reoption"].get("adversarial_filter") or []))
     return 0
 
 

@@ -245,7 +245,7 @@ def question_kind(o) -> str:
 
 
 def is_camera(o) -> bool:
-    return o.subject_class == "camera"
+    return o.is_camera
 
 
 def noun_of(o) -> str | None:
