@@ -519,6 +519,38 @@ def test_subset_drops_angles_forced_by_the_one_degree_floor():
     assert forced == {f"r{i}" for i in range(len(near))}
 
 
+def test_adversarial_filter_reads_but_does_not_score_structural_rows():
+    """12 of 48 heading changes within 0.4 degrees of zero are forced by the 1 degree floor (a structural
+    leak: no option design hides it). A planted reader that names exactly those answers is one the
+    filter must not chase: redrawing them cannot mend the leak and would hide it from the check. The
+    filter scores the 36 other rows only, finds nothing, and redraws nothing."""
+    from resti_lib.options.attacks import ATTACKS, attack
+    from resti_lib.options.spec import Interface, deep_merge
+
+    q = "By how many degrees did the camera's heading change between t=0 s and t=5 s? (unit: °)"
+    near = [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.05, -0.05, 0.15, -0.15, 0.35]
+    far = [5.0 + 2.9 * k for k in range(36)]
+    rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2), video=f"seg{i}_camera_1.mp4")
+            for i, x in enumerate(near + far)]
+    forced = {d["id"] for d in evaluation_subset(rows, IFACE)["dropped"] if d["reason"] == "floor_forced"}
+    assert forced == {f"r{i}" for i in range(len(near))}
+
+    def near_zero(p):
+        return frozenset(p.answer) if abs(V.parse(p.detail).value) < 0.4 else None
+
+    attack("test_near_zero", ["angle"], "planted: the floor-forced answers")(near_zero)
+    try:
+        on = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 3, "attacks": ["test_near_zero"]}}),
+                       IFACE.tasks)
+        _, ev, _ = build_options(iface=on, records=rows, seed=0)
+    finally:
+        ATTACKS.pop("test_near_zero")
+    log = ev.attrs["adversarial"]
+    assert log[0]["rows_checked"] == len(far) and log[0]["significant_cells"] == []
+    assert log[0]["stopped"] == "at chance" and len(log) == 1
+    assert "adversarial_redrawn" not in ev or ev["adversarial_redrawn"].isna().all()
+
+
 def test_near_equal_answers_of_one_recording_get_translated_candidate_sets():
     """The camera videos of one segment ask one heading change and get answers 0.01-0.3 degrees
     apart: their candidate sets are translates of one set, so matching candidates across the rows

@@ -75,6 +75,30 @@ def test_release_json_states_the_run(main_run, miniworld):
     assert run["params_digest"] in index and "2023-11-14T22:13:20Z" in index
 
 
+def test_release_json_records_each_tasks_adversarial_filter(main_run):
+    """Every task's option stage checked its options with the adversarial filter on the rows no
+    structural leak touches; release.json records its checks per task. The rows checked are counted
+    again here from the shipped rows of each task (a categorical task has nothing to check)."""
+    from resti_lib.io.benchmark import load_release
+    from resti_lib.options.structural import evaluation_subset, residual_ids
+    from resti_lib.release.verify import release_interface
+
+    rel = main_run.out / "release"
+    meta = json.loads((rel / "release.json").read_text())
+    iface, _ = release_interface(load_release(rel, strict=True, known_tasks=TASK_NAMES))
+    rows = [json.loads(x) for x in (rel / "resti.jsonl").read_text().splitlines()]
+    log = meta["adversarial_filter"]
+    assert set(log) == {r["Task"] for r in rows}
+    for task, rounds in log.items():
+        own = [r for r in rows if r["Task"] == task]
+        if task == "Spatial Relation":
+            assert rounds == []
+            continue
+        residual = residual_ids(own, iface, evaluation_subset(own, iface, seed=main_run.cfg.get("seed", 0)))
+        assert rounds and rounds[-1]["rows_checked"] == len(residual), task  # the last check read the shipped rows
+        assert rounds[-1]["stopped"] in ("at chance", "rounds", "draw leaks", "max_redrawn_share")
+
+
 def test_outputs_follow_the_umask(main_run):
     want_file, want_dir = 0o666 & ~MAIN_RUN_UMASK, 0o777 & ~MAIN_RUN_UMASK  # 0664 and 0775
     wrong = []

@@ -389,8 +389,10 @@ class Stage:
     def adversarial_filter(self, built: dict, failed: dict) -> list[dict]:
         """Check the drawn options with the strongest blind discriminators (``params/options.yaml``
         ``adversarial.attacks``: learned out of fold by recording, and the priors learned on the other
-        half of the recordings): in every task/source cell where one of them is significant (Holm over
-        the cells at ``alpha``), the rows it identifies (its one pick is the answer) get their
+        half of the recordings) on the rows no structural leak touches
+        (:func:`resti_lib.options.structural.residual_ids`; every row stays readable): in every
+        task/source cell where one of them is significant (Holm over the cells at ``alpha``), the rows
+        it identifies (its one pick is the answer) get their
         distractors drawn again (a new stream of their RNG; the letters stay); then the check runs
         again, at most ``rounds`` times (the work, and so the time, is bounded by the rounds, not by a
         clock: the same input gives the same bytes on any machine). A round that would redraw more than
@@ -407,6 +409,7 @@ class Stage:
 
         from .attacks import parse_rows, run_picks
         from .attacks.scoring import holm
+        from .structural import evaluation_subset, residual_ids
 
         def scored(picks: pd.DataFrame) -> pd.DataFrame:
             cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
@@ -433,7 +436,7 @@ class Stage:
                 if p.rid in failed or p.spec.kind == "label":
                     continue
                 cands, letter = self._letter(p, self.strings[p.rid])
-                rows.append({**r, "Candidates": cands, "Answer": letter})
+                rows.append({**r, "ReSTI ID": p.rid, "Candidates": cands, "Answer": letter})
             if not rows:
                 break
             by_task: dict[str, list[dict]] = defaultdict(list)
@@ -444,16 +447,22 @@ class Stage:
                     checked[task] = run_picks(parse_rows(rs), names, records=rs, iface=self.iface)
             frames = [checked[task] for task in sorted(by_task)]
             picks = pd.concat([f for f in frames if len(f)], ignore_index=True) if any(len(f) for f in frames) \
-                else pd.DataFrame(columns=["pick"])
-            picks = picks[picks["pick"].notna()]
-            if picks.empty:
+                else pd.DataFrame(columns=["pick", "rid"])
+            # rows a structural leak touches are read, not scored: no draw hides their leak, and
+            # redrawing them would only hide it from the check (resti attack --rows residual)
+            residual = set(residual_ids(rows, self.iface, evaluation_subset(rows, self.iface, seed=self.seed)))
+            picks = picks[picks["pick"].notna() & picks["rid"].astype(str).isin(residual)]
+            if picks.empty:  # no attack picks on the rows it may score
+                log.append({"round": rnd + 1, "rows_checked": len(residual), "cells_checked": 0,
+                            "significant_cells": [], "stopped": "at chance"})
                 break
             picks = picks.assign(direction=picks["direction"].fillna("").astype(str))
             # every task's rows pooled over its sources too (a leak can be too thin to see per source)
             picks = pd.concat([picks, picks.assign(source="ALL")], ignore_index=True)
             cells = scored(picks)
             significant = {k for k, sig in zip(cells.index, holm(cells["p"], alpha)) if sig}
-            record = {"round": rnd + 1, "cells_checked": int(len(cells)), "significant_cells": named(cells, significant)}
+            record = {"round": rnd + 1, "rows_checked": len(residual), "cells_checked": int(len(cells)),
+                      "significant_cells": named(cells, significant)}
             if fresh and named_last:  # the rows drawn again last round, on their own
                 again = scored(picks[picks["rid"].astype(str).isin(fresh)])
                 again = again[again.index.isin(sorted(named_last))]

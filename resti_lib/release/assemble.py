@@ -89,6 +89,7 @@ def _merge_interface(record: dict, path: Path, task: str) -> None:
         raise InvariantError(f"tasks {first!r} and {task!r} built their options with different option params "
                              f"(params/options.yaml changed between their runs?): rerun both")
     record["rules"][task] = own["rules"][task]
+    record.setdefault("adversarial_filter", {})[task] = own.get("adversarial_filter", [])
 
 
 def _in_legacy_order(provenance: pd.DataFrame, legacy: pd.DataFrame) -> pd.DataFrame:
@@ -155,16 +156,19 @@ def count_fields(accepted: list[dict], excluded: list[dict], *, excluded_order: 
 
 
 def release_meta(accepted: list[dict], excluded: list[dict], artifacts: dict, *, context: dict | None = None,
-                 answer_interface: dict | None = None) -> dict:
+                 answer_interface: dict | None = None, adversarial_filter: dict | None = None) -> dict:
     """The ``release.json`` object of an assembled release; ``context``: the run that made it, under
     ``run`` (:func:`resti_lib.run.runinfo.run_context`: input, params digest, code and package versions);
     ``answer_interface``: the option params and task rules the options were built with
     (:meth:`resti_lib.options.spec.Interface.to_dict`), which ``resti verify`` and ``resti reoption``
-    read back."""
+    read back; ``adversarial_filter``: the option stage's adversarial checks of each task (task ->
+    rounds: :meth:`resti_lib.options.stage.Stage.adversarial_filter`)."""
     meta = {"name": "ReSTI", "format": "ReSTI v5 schema", "generator": f"resti {__version__}",
             **count_fields(accepted, excluded), "artifacts": artifacts}
     if answer_interface:
         meta["answer_interface"] = answer_interface
+    if adversarial_filter:
+        meta["adversarial_filter"] = adversarial_filter
     if context:
         meta["run"] = context
     return meta
@@ -223,12 +227,13 @@ def release_stage(out_dir: str | os.PathLike, *, inputs=()):
 
 
 def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.DataFrame, legacy: pd.DataFrame,
-                  out_dir: str | Path, *, inputs=(), context: dict | None = None, answer_interface: dict | None = None
-                  ) -> dict:
+                  out_dir: str | Path, *, inputs=(), context: dict | None = None, answer_interface: dict | None = None,
+                  adversarial_filter: dict | None = None) -> dict:
     """Write the release atomically; returns the validation object. The rows carry the options the
     task runs built through the option stage (:mod:`resti_lib.options.stage`); they ship unchanged.
     ``inputs``: paths the release is made from (the release folder may not be one of them, nor hold
-    one); ``context``: the run block of ``release.json`` (:func:`resti_lib.run.runinfo.run_context`)."""
+    one); ``context``: the run block of ``release.json`` (:func:`resti_lib.run.runinfo.run_context`);
+    ``adversarial_filter``: each task's filter checks (task -> rounds), recorded as built."""
     with release_stage(out_dir, inputs=inputs) as st:
         check_invariants(legacy, accepted, excluded)
         order = {k: i for i, k in enumerate(legacy["Legacy Row Key"])}
@@ -241,12 +246,13 @@ def write_release(accepted: list[dict], excluded: list[dict], provenance: pd.Dat
         st.write("provenance.parquet", _parquet_bytes(provenance))
         validation = st.verify(legacy_keys=list(legacy["Legacy Row Key"]),
                                meta=release_meta(accepted, excluded, {}, context=context,
-                                                 answer_interface=answer_interface))
+                                                 answer_interface=answer_interface,
+                                                 adversarial_filter=adversarial_filter))
         if not validation["passed"]:
             raise InvariantError(f"the assembled release fails verify: {failing_checks(validation)}")
         names = ["resti.jsonl", "resti.parquet", "excluded.jsonl", "provenance.parquet", "validation.json"]
         st.seal(release_meta(accepted, excluded, st.artifacts(names), context=context,
-                             answer_interface=answer_interface), names)
+                             answer_interface=answer_interface, adversarial_filter=adversarial_filter), names)
     return validation
 
 
@@ -271,8 +277,9 @@ def assemble(legacy_path: str | Path, tasks_dir: str | Path, out_dir: str | Path
     _lean_arrow_pool()
     legacy, _ = load_legacy(legacy_path, strict=False, known_tasks=names())
     accepted, excluded, provenance, answer_interface = collect(Path(tasks_dir), legacy)
+    adversarial = answer_interface.pop("adversarial_filter", None)
     return write_release(accepted, excluded, provenance, legacy, out_dir, inputs=[legacy_path, tasks_dir],
-                         context=context, answer_interface=answer_interface)
+                         context=context, answer_interface=answer_interface, adversarial_filter=adversarial)
 
 
 def sequence_groups(provenance: pd.DataFrame) -> dict:

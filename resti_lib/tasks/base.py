@@ -365,6 +365,7 @@ class TaskResult:
     provenance: pd.DataFrame
     option_seconds: float = 0.0  # time spent in the option stage (reported by the scale benchmark)
     interface: dict = field(default_factory=dict)  # the answer interface the options were built with
+    adversarial: list = field(default_factory=list)  # the adversarial filter's checks (Stage.adversarial_filter)
 
 
 def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface, peers: list | None = None,
@@ -436,14 +437,16 @@ def finalize(outcomes: list[Outcome], legacy: pd.DataFrame, *, seed: int, iface,
             "legacy_detail": o.legacy_detail, "new_detail": new_detail,
             "option_spec": _json(o.option_spec) if o.option_spec is not None and o.verdict != "excluded" else None,
         })
-    return TaskResult(accepted, excluded, pd.DataFrame(prov), t_opt, iface.to_dict())
+    return TaskResult(accepted, excluded, pd.DataFrame(prov), t_opt, iface.to_dict(), ev.attrs.get("adversarial", []))
 
 
 def write_task_outputs(result: TaskResult, out_dir: str | Path) -> dict:
     """``accepted.jsonl``, ``excluded.jsonl``, ``provenance.parquet`` and ``interface.json`` (the
-    answer interface its options were built with) of one task (atomic writes)."""
+    answer interface its options were built with, and the adversarial filter's checks) of one task
+    (atomic writes)."""
     out_dir = Path(out_dir)
-    atomic_write_bytes(out_dir / "interface.json", (_json(result.interface) + "\n").encode("utf-8"))
+    record = {**result.interface, "adversarial_filter": result.adversarial}
+    atomic_write_bytes(out_dir / "interface.json", (_json(record) + "\n").encode("utf-8"))
     atomic_write_bytes(out_dir / "accepted.jsonl", jsonl_text(result.accepted).encode("utf-8"))
     atomic_write_bytes(out_dir / "excluded.jsonl", jsonl_text(result.excluded, sort_keys=True).encode("utf-8"))
     buf = io.BytesIO()
