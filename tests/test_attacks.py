@@ -284,3 +284,26 @@ def test_printed_in_agrees_with_a_boundary_regex():
     assert 400 < hits < 3600  # both outcomes are exercised
     assert printed_in("1.25", "moved1.25m") and not printed_in("1.25", "moved11.25m")
     assert not printed_in("1.25", "1.250m") and printed_in("1.25", "at1.25.")
+
+
+def test_population_forest_is_quiet_when_the_host_cleared_its_warning_filters():
+    """The population attacker's forest grows its trees on joblib threads, which take the caller's
+    warning filters; with none at all (a host that cleared them) the library warns once per tree (a
+    bare forest here: 10 warnings). The attacker's fits warn nothing."""
+    import warnings
+
+    from sklearn.ensemble import RandomForestClassifier
+
+    from resti_lib.options.attacks.learned import LearnedConfig, _population_model, grouped_scores
+
+    rng = np.random.default_rng(0)
+    X, y = rng.random((200, 3)), np.zeros(200, bool)
+    y[::5] = True
+    with warnings.catch_warnings(record=True) as bare:
+        warnings.resetwarnings()
+        RandomForestClassifier(n_estimators=10, n_jobs=2).fit(X, y)
+    with warnings.catch_warnings(record=True) as ours:
+        warnings.resetwarnings()
+        grouped_scores(X, y, [i % 8 for i in range(40)], LearnedConfig(), make_model=_population_model)
+    assert sum("parallel.delayed" in str(w.message) for w in bare) == 10
+    assert [str(w.message) for w in ours] == []

@@ -97,6 +97,12 @@ def test_release_json_records_each_tasks_adversarial_filter(main_run):
         residual = residual_ids(own, iface, evaluation_subset(own, iface, seed=main_run.cfg.get("seed", 0)))
         assert rounds and rounds[-1]["rows_checked"] == len(residual), task  # the last check read the shipped rows
         assert rounds[-1]["stopped"] in ("at chance", "rounds", "draw leaks", "max_redrawn_share")
+    # the report shows the same record, a row per task
+    index = (main_run.out / "report" / "index.html").read_text()
+    table = index[index.index("Adversarial filter of the option stage"):]
+    table = table[:table.index("</table>")]
+    assert table.count("<tr>") == len(log)  # one body row per task (the header row has a style)
+    assert table.count(">nothing to check<") == 1  # Spatial Relation
 
 
 def test_outputs_follow_the_umask(main_run):

@@ -197,6 +197,21 @@ def reoption_release(release: str | os.PathLike = DEFAULT_RELEASE, out_dir: str 
     return ReoptionResult(out, rows, records, ev, meta, validation, time.perf_counter() - t0, leaks, subset, dropped)
 
 
+def filter_table(by_task: dict) -> pd.DataFrame:
+    """The adversarial filter of each task's option stage (``adversarial_filter`` in an assembled
+    release's ``release.json``: task -> checks), one row per task: checks, rows scored, rows drawn
+    again, why it stopped, and the cells where the redrawn rows still leak."""
+    out = []
+    for task, log in sorted(by_task.items()):
+        last = log[-1] if log else {}
+        out.append({"task": task, "checks": len(log), "rows scored": last.get("rows_checked"),
+                    "rows drawn again": sum(int(r.get("redrawn", 0)) for r in log),
+                    "stopped": last.get("stopped", "nothing to check" if not log else "?"),
+                    "draw leaks": "; ".join(f"{c['source']} {c['attack']} {c['hits']:g}/{c['n']}"
+                                            for c in last.get("draw_leaks") or [])})
+    return pd.DataFrame(out, columns=["task", "checks", "rows scored", "rows drawn again", "stopped", "draw leaks"])
+
+
 def filter_summary(log: list[dict]) -> str:
     """One line on the adversarial filter's rounds (``reoption.adversarial_filter`` in ``release.json``):
     checks, rows drawn again, why it stopped, and the cells where the redrawn rows still leak."""
@@ -357,7 +372,7 @@ def preserved_fields_check(before: list[dict], after: list[dict]) -> list[str]:
     return problems
 
 
-__all__ = ["DEFAULT_RELEASE", "ReoptionError", "ReoptionResult", "attack_tables", "before_after_figure", "filter_summary",
-           "check_input", "label_balance",
+__all__ = ["DEFAULT_RELEASE", "ReoptionError", "ReoptionResult", "attack_tables", "before_after_figure",
+           "check_input", "filter_summary", "filter_table", "label_balance",
            "preserved_fields_check", "reoption_records", "reoption_release", "side_by_side",
            "strongest_by_task", "value_reuse", "write_audit"]

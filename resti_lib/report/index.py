@@ -261,6 +261,14 @@ def headline_html(out_root: Path) -> str:
         where = " (OUTPUT_DIR: this report's output folder)" if cmd and "OUTPUT_DIR" in cmd else ""
         parts.append(f"<h3>Blind attacks on our release {tag}</h3>" + _leaks(ours, "our release")
                      + (f"<p class=\"more\">The same counts: <code>{_e(cmd)}</code>{where}.</p>" if cmd else ""))
+    if meta and meta.get("adversarial_filter"):
+        from ..release.reoption import filter_table
+
+        parts.append(to_html(filter_table(meta["adversarial_filter"]), caption=(
+            "Adversarial filter of the option stage, per task (release.json adversarial_filter): the strongest "
+            "blind discriminators checked the drawn options on the rows no structural leak touches and redrew "
+            "the rows a significant one identified; 'draw leaks' names the cells where the redrawn rows, on "
+            "their own, were still significant.")))
     parts.append("<h3>Answer-interface audit of the reference release <span class=\"label real\">real data</span></h3>")
     ref = reference_audit(out_root)
     if ref is None:

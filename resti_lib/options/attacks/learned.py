@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections import Counter
 from dataclasses import dataclass
 
@@ -389,9 +390,11 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
         # one OpenMP thread for the gradient boosting (its threads spin while they wait, and a busy
         # machine stalls them); the population attacker's forest grows its trees on FIT_THREADS joblib
         # threads, which do not change a tree
-        with threadpool_limits(1):
+        with threadpool_limits(1), warnings.catch_warnings():
+            # a forest hands its trees to joblib with the caller's warning filters, and warns on every
+            # tree when that list is empty (a host that cleared it); the trees do not read it
+            warnings.filterwarnings("ignore", message=".*sklearn.utils.parallel.delayed", category=UserWarning)
             model.fit(Xf[tr], y[tr])
-        with threadpool_limits(1):
             if hasattr(model, "n_jobs"):
                 model.n_jobs = 1  # trees' votes summed in one order
             proba = model.predict_proba(Xf[te])[:, list(model.classes_).index(True)]
