@@ -519,11 +519,39 @@ def test_subset_drops_angles_forced_by_the_one_degree_floor():
     assert forced == {f"r{i}" for i in range(len(near))}
 
 
+def test_subset_keeps_window_answers_one_in_five_of_the_rows_carrying_the_window():
+    """12 of 48 heading changes lie in a window narrower than the 1 degree floor; 20 of the 36 others
+    carry a candidate in that window (0.3 degrees) as a distractor. Dropping every window answer would
+    leave a subset where the window's candidate is never the answer; the subset keeps 20 // 4 = 5 of
+    them, so the window's candidate is the answer in 5 of the 25 kept rows that carry it."""
+    q = "By how many degrees did the camera's heading change between t=0 s and t=5 s? (unit: °)"
+    near = [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.05, -0.05, 0.15, -0.15, 0.35]
+    rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2), video=f"seg{i}_camera_1.mp4",
+                 labels=[V.format_angle(x + d, 2) for d in (0.0, 10.0, 20.0, 30.0, 40.0)])
+            for i, x in enumerate(near)]
+    for k in range(36):
+        x = 5.0 + 2.9 * k
+        other = 0.3 if k < 20 else -30.0
+        rows.append(_row(len(rows), "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2),
+                         video=f"seg{len(rows)}_camera_1.mp4",
+                         labels=[V.format_angle(y, 2) for y in (x, other, x + 50.0, x + 60.0, x + 70.0)]))
+    sub = evaluation_subset(rows, IFACE)
+    forced = {d["id"] for d in sub["dropped"] if d["reason"] == "floor_forced"}
+    assert len(forced) == 12 - 5 and forced <= {f"r{i}" for i in range(12)}
+    kept = set(sub["ids"])
+    carrying = [r for r in rows if r["ReSTI ID"] in kept
+                and any(abs(V.parse(t).value) < 0.4 for t in r["Candidates"].values())]
+    assert len(carrying) == 25
+    assert sum(abs(V.parse(r["Answer Detail"]).value) < 0.4 for r in carrying) == 5
+
+
 def test_adversarial_filter_reads_but_does_not_score_structural_rows():
-    """12 of 48 heading changes within 0.4 degrees of zero are forced by the 1 degree floor (a structural
-    leak: no option design hides it). A planted reader that names exactly those answers is one the
-    filter must not chase: redrawing them cannot mend the leak and would hide it from the check. The
-    filter scores the 36 other rows only, finds nothing, and redraws nothing."""
+    """12 of 48 heading changes lie within 0.4 degrees of zero, a window the 1 degree floor lets hold one
+    candidate: the subset keeps them one in five of the rows that carry the window's candidate and
+    drops the rest as floor_forced (a structural leak: no option design hides it). A planted reader
+    that names exactly the dropped rows' answers is one the filter must not chase: redrawing them
+    cannot mend the leak and would hide it from the check. The filter scores the other rows only,
+    finds nothing, and redraws nothing."""
     from resti_lib.options.attacks import ATTACKS, attack
     from resti_lib.options.spec import Interface, deep_merge
 
@@ -532,23 +560,25 @@ def test_adversarial_filter_reads_but_does_not_score_structural_rows():
     far = [5.0 + 2.9 * k for k in range(36)]
     rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2), video=f"seg{i}_camera_1.mp4")
             for i, x in enumerate(near + far)]
-    forced = {d["id"] for d in evaluation_subset(rows, IFACE)["dropped"] if d["reason"] == "floor_forced"}
-    assert forced == {f"r{i}" for i in range(len(near))}
+    off = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 0}}), IFACE.tasks)
+    drawn, _, _ = build_options(iface=off, records=rows, seed=0)
+    forced = {d["id"] for d in evaluation_subset(drawn, off)["dropped"] if d["reason"] == "floor_forced"}
+    assert forced and forced <= {f"r{i}" for i in range(len(near))}
 
-    def near_zero(p):
-        return frozenset(p.answer) if abs(V.parse(p.detail).value) < 0.4 else None
+    def dropped_rows(p):
+        return frozenset(p.answer) if str(p.rid) in forced else None
 
-    attack("test_near_zero", ["angle"], "planted: the floor-forced answers")(near_zero)
+    attack("test_forced_rows", ["angle"], "planted: the rows the subset drops as floor_forced")(dropped_rows)
     try:
-        on = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 3, "attacks": ["test_near_zero"]}}),
+        on = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 3, "attacks": ["test_forced_rows"]}}),
                        IFACE.tasks)
-        _, ev, _ = build_options(iface=on, records=rows, seed=0)
+        out, ev, _ = build_options(iface=on, records=rows, seed=0)
     finally:
-        ATTACKS.pop("test_near_zero")
+        ATTACKS.pop("test_forced_rows")
     log = ev.attrs["adversarial"]
-    assert log[0]["rows_checked"] == len(far) and log[0]["significant_cells"] == []
+    assert log[0]["rows_checked"] == len(rows) - len(forced) and log[0]["significant_cells"] == []
     assert log[0]["stopped"] == "at chance" and len(log) == 1
-    assert "adversarial_redrawn" not in ev or ev["adversarial_redrawn"].isna().all()
+    assert [r["Candidates"] for r in out] == [r["Candidates"] for r in drawn]  # nothing redrawn
 
 
 def test_near_equal_answers_of_one_recording_get_translated_candidate_sets():

@@ -406,10 +406,10 @@ def _drop_keyed_reveals(c: _Selection) -> None:
 
 def _drop_floor_forced(c: _Selection) -> None:
     """Angles inside a window narrower than the separation floor that holds more than a fifth of their
-    cell."""
+    cell: the window holds one candidate, so of the rows that carry a candidate there, those whose
+    answer it is are kept at most one in five (seeded; the others ``floor_forced``). Dropping them all
+    would leave a subset where the window's candidate is never the answer."""
     specs, rid, drop, iface = c.specs, c.rid, c.drop, c.iface
-    # that holds more than a fifth of a cell's answers (only one candidate fits there, so the
-    # candidate inside it is the answer more often than one in five)
     cells_a: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s is not None and s.kind == "angle" and rid[i] not in drop:
@@ -417,11 +417,29 @@ def _drop_floor_forced(c: _Selection) -> None:
     for _, ids in sorted(cells_a.items()):
         vals = np.array([specs[i].value.value for i in ids])
         win = dense_window(vals, angle_gap(specs[ids[0]], iface.options))
-        if win is not None:
-            lo, hi, _ = win
-            for i, x in zip(ids, vals):
-                if lo - 1e-9 <= x <= hi + 1e-9:
-                    drop[rid[i]] = "floor_forced"
+        if win is None:
+            continue
+        lo, hi, _ = win
+        inside = [i for i, x in zip(ids, vals) if lo - 1e-9 <= x <= hi + 1e-9]
+        carriers = sum(1 for i, x in zip(ids, vals) if not lo - 1e-9 <= x <= hi + 1e-9
+                       and any(lo - 1e-9 <= y <= hi + 1e-9 for y in _candidate_values(c.records[i])))
+        keep = set(c.rng.permutation(len(inside))[:carriers // 4].tolist())
+        for j, i in enumerate(inside):
+            if j not in keep:
+                drop[rid[i]] = "floor_forced"
+
+
+def _candidate_values(record: dict) -> list[float]:
+    """The printed values of a row's candidates (those that parse as one number)."""
+    out = []
+    for t in (record.get("Candidates") or {}).values():
+        try:
+            v = V.parse(str(t))
+        except (InputError, ValueError):
+            continue
+        if isinstance(getattr(v, "value", None), (int, float)):
+            out.append(float(v.value))
+    return out
 
 
 def _drop_relation_forced(c: _Selection) -> None:
@@ -477,8 +495,9 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
                  "video, is left out; of rows whose answer a sibling's answer gives through physics (a keyed "
                  "relation attack reveals it), one per recording and relation is kept; angles inside a window "
                  "narrower than the separation floor that holds more than a fifth of their cell (forced by the "
-                 "floor) are left out, and so are rows whose answer every candidate of a related row predicts to "
-                 "within half the floor; exact-zero answers are kept at "
+                 "floor) are kept at most one in five of the rows that carry the window's one candidate; rows "
+                 "whose answer every candidate of a related row predicts to within half the floor are left out; "
+                 "exact-zero answers are kept at "
                  "most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),
@@ -491,8 +510,9 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
 
 #: Reasons of :func:`evaluation_subset` that name a leak no option design hides (the row's answer
 #: follows from the video name, a converse question, a sibling asking the same thing, a premise printed
-#: in a question, a window under the separation floor, every candidate of a related row, or a zero
-#: string more frequent than one in five). The others (``label_balance``, ``keyed_reveal``) trim what
+#: in a question, a window under the separation floor holding more answers than one in five of the rows
+#: that carry its one candidate, every candidate of a related row, or a zero string more frequent than
+#: one in five). The others (``label_balance``, ``keyed_reveal``) trim what
 #: is left for a balanced evaluation and a reader of the answer key.
 STRUCTURAL_REASONS = ("metadata", "converse_pair", "repeated_answer", "answer_is_premise", "same_video_reveal",
                       "floor_forced", "relation_floor", "zero_slot")

@@ -1,5 +1,6 @@
-"""Poses: a motion from the premise pose (translation in the premise's heading frame and a relative
-rotation), cameras relative to a reference around their gaze point."""
+"""Poses: a motion from the premise pose (translation in the premise's heading frame, for a vehicle
+as a speed and a direction; a turn and two tilts), cameras relative to a reference around their gaze
+point."""
 
 from __future__ import annotations
 
@@ -59,11 +60,12 @@ class PoseKind(KindBuilder):
 
     def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
         """Poses as a motion from the premise: the translation in the premise's horizontal heading
-        frame (forward, left, up; a rate over the window for vehicles; signed by the direction of time,
-        :func:`time_sign`), the turn about the vertical from the premise's heading (signed likewise)
-        and the camera's two tilts from level (:func:`~resti_lib.geometry.fields.yaw_tilt`: gravity-
-        referenced, not relative to the premise, so a distractor leans as the group's answers lean and
-        a level camera among tilted ones is no tell), jointly. A question without a printed premise
+        frame (forward, left, up; for vehicles a speed over the window and a direction,
+        :meth:`translation_fields`; signed by the direction of time, :func:`time_sign`), the turn
+        about the vertical from the premise's heading (signed likewise) and the camera's two tilts
+        from level (:func:`~resti_lib.geometry.fields.yaw_tilt`: gravity-referenced, not relative to
+        the premise, so a distractor leans as the group's answers lean and a level camera among tilted
+        ones is no tell), jointly. A question without a printed premise
         (the reference camera as the identity) has the identity as premise."""
         kp = st.params["kinds"]["pose"]
         src = ps[0].spec.source
@@ -98,8 +100,9 @@ class PoseKind(KindBuilder):
             h_t = 0.5 * 10.0 ** -v.decimals
             if not relative:
                 d = Hf.T @ (np.array(v.t, float) - tp) / scale
-                F.append([*d, *self.rotation_fields(R0, info["frame"][p.rid][3], sign, up, info["tilt_ref"])])
-                Hh.append([h_t / abs(scale)] * 3 + [h_t] * 3)
+                f_t, h_f = self.translation_fields(d, h_t / abs(scale), rate)
+                F.append([*f_t, *self.rotation_fields(R0, info["frame"][p.rid][3], sign, up, info["tilt_ref"])])
+                Hh.append([*h_f] + [h_t] * 3)
             W.append([log_window(p.spec)])
         if relative:  # cameras looking at a desk: drawn around the gaze point they share
             depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
@@ -120,8 +123,33 @@ class PoseKind(KindBuilder):
                             knn=st.model["knn"], shrink=st.model["copula_shrink"],
                             min_rows=int(st.model["min_group"]),
                             prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
-                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [3.0, 1.0, 0.2, 0.3, 0.1, 0.1]))
+                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
+
+    @staticmethod
+    def translation_fields(d, half: float, rate: bool) -> tuple[list[float], list[float]]:
+        """The fields of a motion ``d`` (forward, left, up in the premise's heading frame) and the half
+        width of its printed cell in each. A vehicle's (``rate``): the log of its speed and the
+        direction of its motion (the angle from forward, and the climb), since a car moves along its
+        heading and its sideways motion grows with its speed (drawn as three independent-looking
+        components, a slow car's distractors veered where its answer goes straight). Others: the
+        three components."""
+        d = np.asarray(d, float)
+        if not rate:
+            return [float(x) for x in d], [half] * 3
+        r = float(np.linalg.norm(d))
+        ang = min(half / max(r, half), np.pi)
+        return ([float(np.log(r + half)), float(np.arctan2(d[1], d[0])), float(np.arctan2(d[2], np.hypot(d[0], d[1])))],
+                [half / (r + half), ang, ang])
+
+    @staticmethod
+    def translation_of(f, half: float, rate: bool) -> np.ndarray:
+        """The motion of :meth:`translation_fields` (its inverse)."""
+        if not rate:
+            return np.asarray(f[:3], float)
+        r = max(float(np.exp(f[0])) - half, 0.0)
+        az, el = float(f[1]), float(f[2])
+        return r * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
 
     @staticmethod
     def rotation_fields(R, premise_yaw: float, sign: float, up, tilt_ref: float) -> list[float]:
@@ -170,13 +198,14 @@ class PoseKind(KindBuilder):
         elif n_draw:
             _, tp, Hf, yaw_p = info["frame"][p.rid]
             up = np.asarray(st.params["kinds"]["pose"]["world_up"], float)
-            f0 = np.concatenate([Hf.T @ (t0 - tp) / scale, self.rotation_fields(R0, yaw_p, sign, up, info["tilt_ref"])])
-            hh = [h_t / abs(scale)] * 3 + [h_t] * 3
+            f_t, h_f = self.translation_fields(Hf.T @ (t0 - tp) / scale, h_t / abs(scale), info["rate"])
+            f0 = np.concatenate([f_t, self.rotation_fields(R0, yaw_p, sign, up, info["tilt_ref"])])
+            hh = [*h_f] + [h_t] * 3
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
                 T[:3, :3] = self.rotation_of(b[3:6], yaw_p, sign, up, info["tilt_ref"])
-                t = tp + Hf @ (b[:3] * scale)
+                t = tp + Hf @ (self.translation_of(b[:3], h_t / abs(scale), info["rate"]) * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
                 strings.append(V.format_pose(T, v.decimals, compact=v.compact))
         self.check(st, p, [V.parse(t) for t in strings] + [v])
