@@ -169,8 +169,8 @@ def group_key(spec: OptionSpec) -> str:
         return f"{spec.task}|{spec.source}|{spec.unit}|{form}|{role}"
     if spec.kind == "angle":
         return f"{spec.task}|{spec.source}|{o.quantity}"
-    if spec.kind == "pose":
-        return f"{spec.task}|{spec.source}|pose"
+    if spec.kind == "pose":  # a camera's mount fixes where the car's travel lies in its frame
+        return f"{spec.task}|{spec.source}|pose" + (f"|camera {o.camera}" if o.camera else "")
     return f"{spec.task}|{spec.source}|{spec.kind}"
 
 
