@@ -214,6 +214,16 @@ def test_box_edges_drawn_jointly():
         assert ROW_CHECKS["format_consistency"](parse_row(r, r["ReSTI ID"], IFACE)) is None
 
 
+def _waymo_pose_row(i, P, T, w, cam=1):
+    """A Waymo Pose question: the premise ``P`` at t=1 s, the answer ``T`` at t=1+w s, from camera
+    ``cam``; returns the row and the premise as printed."""
+    ptxt = V.format_pose(P, 2, compact=True)
+    q = (f"Given the camera pose at t=1 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
+         f"pose in the same coordinate frame at t={1 + w:g} s?")
+    return (_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
+                 video=f"seg{i}_camera_{cam}.mp4", t0=1 + w, t1=1 + w), V.parse(ptxt).matrix)
+
+
 def test_poses_drawn_as_motion_from_the_premise():
     rng = np.random.default_rng(4)
     rows, prem = [], []
@@ -229,12 +239,9 @@ def test_poses_drawn_as_motion_from_the_premise():
         t = tp + fwd * np.exp(rng.normal(math.log(9.0), 0.3)) * w
         P, T = np.eye(4), np.eye(4)
         P[:3, :3], P[:3, 3], T[:3, :3], T[:3, 3] = Rp, tp, R, t
-        ptxt = V.format_pose(P, 2, compact=True)
-        q = (f"Given the camera pose at t=1 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
-             f"pose in the same coordinate frame at t={1 + w:g} s?")
-        rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
-                         video=f"seg{i}_camera_1.mp4", t0=1 + w, t1=1 + w))
-        prem.append((V.parse(ptxt).matrix, w))
+        row, printed = _waymo_pose_row(i, P, T, w)
+        rows.append(row)
+        prem.append((printed, w))
     out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     hits_near, hits_rate = 0.0, 0.0
     for r, (P, w) in zip(out, prem):
@@ -270,12 +277,9 @@ def test_vehicle_cameras_on_other_mounts_are_drawn_apart():
         P, T = np.eye(4), np.eye(4)
         P[:3, :3], P[:3, 3] = Rp, tp
         T[:3, :3], T[:3, 3] = Rotation.from_euler("z", rng.normal(0, 5), degrees=True).as_matrix() @ Rp, t
-        ptxt = V.format_pose(P, 2, compact=True)
-        q = (f"Given the camera pose at t=1 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
-             f"pose in the same coordinate frame at t={1 + w:g} s?")
-        rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True),
-                         video=f"seg{i}_camera_{cam}.mp4", t0=1 + w, t1=1 + w))
-        prem.append((V.parse(ptxt).matrix, cam))
+        row, printed = _waymo_pose_row(i, P, T, w, cam)
+        rows.append(row)
+        prem.append((printed, cam))
     out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
 
     def direction(P, s):
