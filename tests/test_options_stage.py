@@ -21,7 +21,7 @@ from resti_lib.geometry.fields import rotation_preimage
 from resti_lib.options.attacks import attack_table
 from resti_lib.options.checks import ROW_CHECKS, parse_row
 from resti_lib.options.stage import build_options
-from resti_lib.options.structural import evaluation_subset, residual_ids, structural_leaks
+from resti_lib.options.structural import STRUCTURAL_REASONS, evaluation_subset, residual_ids, structural_leaks
 from resti_lib.tasks import interface as _interface
 
 IFACE = _interface()
@@ -563,11 +563,12 @@ def test_subset_drops_angles_forced_by_the_one_degree_floor():
     assert forced == {f"r{i}" for i in range(len(near))}
 
 
-def test_subset_keeps_window_answers_one_in_five_of_the_rows_carrying_the_window():
+def test_subset_drops_every_row_whose_candidates_touch_the_floor_window():
     """12 of 48 heading changes lie in a window narrower than the 1 degree floor; 20 of the 36 others
-    carry a candidate in that window (0.3 degrees) as a distractor. Dropping every window answer would
-    leave a subset where the window's candidate is never the answer; the subset keeps 20 // 4 = 5 of
-    them, so the window's candidate is the answer in 5 of the 25 kept rows that carry it."""
+    carry a candidate in that window (0.3 degrees) as a distractor. Dropping only the window's answers
+    would leave a subset where the window's candidate is never the answer; the subset drops every row
+    whose candidates touch the window (a symmetric function of the candidate set, so the answer stays
+    one of five in the rows kept): the 12 as floor_forced, the 20 as floor_window, the 16 others kept."""
     q = "By how many degrees did the camera's heading change between t=0 s and t=5 s? (unit: °)"
     near = [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.05, -0.05, 0.15, -0.15, 0.35]
     rows = [_row(i, "Ego-Centric Orientation", "Waymo", q, V.format_angle(x, 2), video=f"seg{i}_camera_1.mp4",
@@ -580,20 +581,17 @@ def test_subset_keeps_window_answers_one_in_five_of_the_rows_carrying_the_window
                          video=f"seg{len(rows)}_camera_1.mp4",
                          labels=[V.format_angle(y, 2) for y in (x, other, x + 50.0, x + 60.0, x + 70.0)]))
     sub = evaluation_subset(rows, IFACE)
-    forced = {d["id"] for d in sub["dropped"] if d["reason"] == "floor_forced"}
-    assert len(forced) == 12 - 5 and forced <= {f"r{i}" for i in range(12)}
-    kept = set(sub["ids"])
-    carrying = [r for r in rows if r["ReSTI ID"] in kept
-                and any(abs(V.parse(t).value) < 0.4 for t in r["Candidates"].values())]
-    assert len(carrying) == 25
-    assert sum(abs(V.parse(r["Answer Detail"]).value) < 0.4 for r in carrying) == 5
+    why = {d["id"]: d["reason"] for d in sub["dropped"]}
+    assert {r for r, w in why.items() if w == "floor_forced"} == {f"r{i}" for i in range(12)}
+    assert {r for r, w in why.items() if w == "floor_window"} == {f"r{i}" for i in range(12, 32)}
+    assert sub["ids"] == [f"r{i}" for i in range(32, 48)]
+    assert {"floor_forced", "floor_window"} <= set(STRUCTURAL_REASONS)
 
 
 def test_adversarial_filter_reads_but_does_not_score_structural_rows():
     """12 of 48 heading changes lie within 0.4 degrees of zero, a window the 1 degree floor lets hold one
-    candidate: the subset keeps them one in five of the rows that carry the window's candidate and
-    drops the rest as floor_forced (a structural leak: no option design hides it). A planted reader
-    that names exactly the dropped rows' answers is one the filter must not chase: redrawing them
+    candidate: the subset drops them as floor_forced (a structural leak: no option design hides it).
+    A planted reader that names exactly those answers is one the filter must not chase: redrawing them
     cannot mend the leak and would hide it from the check. The filter scores the other rows only,
     finds nothing, and redraws nothing."""
     from resti_lib.options.attacks import ATTACKS, attack
@@ -607,7 +605,7 @@ def test_adversarial_filter_reads_but_does_not_score_structural_rows():
     off = Interface(deep_merge(IFACE.options, {"adversarial": {"rounds": 0}}), IFACE.tasks)
     drawn, _, _ = build_options(iface=off, records=rows, seed=0)
     forced = {d["id"] for d in evaluation_subset(drawn, off)["dropped"] if d["reason"] == "floor_forced"}
-    assert forced and forced <= {f"r{i}" for i in range(len(near))}
+    assert forced == {f"r{i}" for i in range(len(near))}
 
     def dropped_rows(p):
         return frozenset(p.answer) if str(p.rid) in forced else None
@@ -620,7 +618,8 @@ def test_adversarial_filter_reads_but_does_not_score_structural_rows():
     finally:
         ATTACKS.pop("test_forced_rows")
     log = ev.attrs["adversarial"]
-    assert log[0]["rows_checked"] == len(rows) - len(forced) and log[0]["significant_cells"] == []
+    window = {d["id"] for d in evaluation_subset(drawn, off)["dropped"] if d["reason"] == "floor_window"}
+    assert log[0]["rows_checked"] == len(rows) - len(forced) - len(window) and log[0]["significant_cells"] == []
     assert log[0]["stopped"] == "at chance" and len(log) == 1
     assert [r["Candidates"] for r in out] == [r["Candidates"] for r in drawn]  # nothing redrawn
 

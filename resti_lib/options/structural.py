@@ -406,9 +406,11 @@ def _drop_keyed_reveals(c: _Selection) -> None:
 
 def _drop_floor_forced(c: _Selection) -> None:
     """Angles inside a window narrower than the separation floor that holds more than a fifth of their
-    cell: the window holds one candidate, so of the rows that carry a candidate there, those whose
-    answer it is are kept at most one in five (seeded; the others ``floor_forced``). Dropping them all
-    would leave a subset where the window's candidate is never the answer."""
+    cell hold its one candidate (``floor_forced``); every other row whose candidates touch that window
+    goes too (``floor_window``). The choice is then a symmetric function of each row's candidate set,
+    so the answer stays one of five in the rows kept: dropping only the window's answers left a
+    subset where its candidate was never right, and keeping some of them left the rows beside the
+    window (candidates a floor apart around a small turn) telling where the answer sits."""
     specs, rid, drop, iface = c.specs, c.rid, c.drop, c.iface
     cells_a: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
@@ -420,13 +422,11 @@ def _drop_floor_forced(c: _Selection) -> None:
         if win is None:
             continue
         lo, hi, _ = win
-        inside = [i for i, x in zip(ids, vals) if lo - 1e-9 <= x <= hi + 1e-9]
-        carriers = sum(1 for i, x in zip(ids, vals) if not lo - 1e-9 <= x <= hi + 1e-9
-                       and any(lo - 1e-9 <= y <= hi + 1e-9 for y in _candidate_values(c.records[i])))
-        keep = set(c.rng.permutation(len(inside))[:carriers // 4].tolist())
-        for j, i in enumerate(inside):
-            if j not in keep:
+        for i, x in zip(ids, vals):
+            if lo - 1e-9 <= x <= hi + 1e-9:
                 drop[rid[i]] = "floor_forced"
+            elif any(lo - 1e-9 <= y <= hi + 1e-9 for y in _candidate_values(c.records[i])):
+                drop[rid[i]] = "floor_window"
 
 
 def _candidate_values(record: dict) -> list[float]:
@@ -495,7 +495,7 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
                  "video, is left out; of rows whose answer a sibling's answer gives through physics (a keyed "
                  "relation attack reveals it), one per recording and relation is kept; angles inside a window "
                  "narrower than the separation floor that holds more than a fifth of their cell (forced by the "
-                 "floor) are kept at most one in five of the rows that carry the window's one candidate; rows "
+                 "floor) are left out with every row whose candidates touch that window; rows "
                  "whose answer every candidate of a related row predicts to within half the floor are left out; "
                  "exact-zero answers are kept at "
                  "most one in five of their group. Selection seeded; the release is unchanged."),
@@ -510,12 +510,12 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
 
 #: Reasons of :func:`evaluation_subset` that name a leak no option design hides (the row's answer
 #: follows from the video name, a converse question, a sibling asking the same thing, a premise printed
-#: in a question, a window under the separation floor holding more answers than one in five of the rows
-#: that carry its one candidate, every candidate of a related row, or a zero string more frequent than
-#: one in five). The others (``label_balance``, ``keyed_reveal``) trim what
-#: is left for a balanced evaluation and a reader of the answer key.
+#: in a question, a window under the separation floor (its answers and every row whose candidates touch
+#: it), every candidate of a related row, or a zero string more frequent than one in five). The others
+#: (``label_balance``, ``keyed_reveal``) trim what is left for a balanced evaluation and a reader of the
+#: answer key.
 STRUCTURAL_REASONS = ("metadata", "converse_pair", "repeated_answer", "answer_is_premise", "same_video_reveal",
-                      "floor_forced", "relation_floor", "zero_slot")
+                      "floor_forced", "floor_window", "relation_floor", "zero_slot")
 
 
 def residual_ids(records: list[dict], iface: Interface, subset: dict) -> list[str]:
