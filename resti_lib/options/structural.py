@@ -48,6 +48,7 @@ import pandas as pd
 from .. import values as V
 from ..errors import InputError
 from ..rng import stable_seed
+from .checks import parse_row
 from .observables import relation_parts
 from .plan import dense_window, share_key
 from .spec import Interface, angle_gap, scalar_gap, spec_of
@@ -425,21 +426,9 @@ def _drop_floor_forced(c: _Selection) -> None:
         for i, x in zip(ids, vals):
             if lo - 1e-9 <= x <= hi + 1e-9:
                 drop[rid[i]] = "floor_forced"
-            elif any(lo - 1e-9 <= y <= hi + 1e-9 for y in _candidate_values(c.records[i])):
+            elif any(lo - 1e-9 <= float(v.value) <= hi + 1e-9
+                     for v in parse_row(c.records[i], rid[i], iface).values.values()):
                 drop[rid[i]] = "floor_window"
-
-
-def _candidate_values(record: dict) -> list[float]:
-    """The printed values of a row's candidates (those that parse as one number)."""
-    out = []
-    for t in (record.get("Candidates") or {}).values():
-        try:
-            v = V.parse(str(t))
-        except (InputError, ValueError):
-            continue
-        if isinstance(getattr(v, "value", None), (int, float)):
-            out.append(float(v.value))
-    return out
 
 
 def _drop_relation_forced(c: _Selection) -> None:

@@ -244,13 +244,9 @@ def question_kind(o) -> str:
     return o.quantity
 
 
-def is_camera(o) -> bool:
-    return o.is_camera
-
-
 def noun_of(o) -> str | None:
     """The head noun of the measured thing; None for the camera or when the question names none."""
-    return None if is_camera(o) or not o.subject_class else o.subject_class
+    return None if o.is_camera or not o.subject_class else o.subject_class
 
 
 def implied_rate(value, o) -> tuple[str, float] | None:

@@ -53,7 +53,6 @@ from .common import top
 from .features import (
     decimals,
     implied_rate,
-    is_camera,
     last_digit,
     noun_of,
     order_concordance,
@@ -425,7 +424,7 @@ def question_row_features(record: dict, obs) -> np.ndarray:
     w = obs.window_s
     instant = obs.time_start is not None and obs.time_start == obs.time_end
     window = [np.log(w + 0.1) if w is not None else np.nan, w if w is not None else np.nan, float(instant),
-              float(is_camera(obs)), float(obs.premise is not None)]
+              float(obs.is_camera), float(obs.premise is not None)]
     words = np.zeros(WORD_BUCKETS)
     toks = re.findall(r"[a-z]+", str(record.get("Question") or "").lower())
     for t in toks:
@@ -601,7 +600,7 @@ def _population_values(batch: Batch):
     rates = [_log_rates(p, o) for p, o in zip(batch.rows, batch.obs)]
     gv = [(str(p.task), str(p.source), question_kind(o)) for p, o in zip(batch.rows, batch.obs)]
     gr = [(str(p.source), implied_rate(p.values["A"], o)[0] if r is not None else None,
-           "camera" if is_camera(o) else "object") for p, o, r in zip(batch.rows, batch.obs, rates)]
+           "camera" if o.is_camera else "object") for p, o, r in zip(batch.rows, batch.obs, rates)]
     return vals, rates, gv, gr
 
 

@@ -30,7 +30,7 @@ from ... import LETTERS
 from ... import values as V
 from .batch import Batch
 from .common import ALL5, directional, top
-from .features import answer_key, implied_rate, is_camera, noun_of, premise_parts, question_kind, repeats_premise, value_scale
+from .features import answer_key, implied_rate, noun_of, premise_parts, question_kind, repeats_premise, value_scale
 from .reference import loo_density
 from .registry import attack
 
@@ -71,7 +71,7 @@ def _rates(batch: Batch) -> list:
 
 def _rate_group(batch: Batch, i: int, rates: list):
     o = batch.obs[i]
-    return (o.source, rates[i][0], "camera" if is_camera(o) else "object")
+    return (o.source, rates[i][0], "camera" if o.is_camera else "object")
 
 
 @attack("implied_rate_typical", ["scalar", "trajectory"], "candidate whose implied rate over the question's window "
