@@ -261,3 +261,26 @@ def test_offsets_leave_out_the_rows_own_value_and_its_copies():
     assert off[0] == off[1] == 3.5
     # the cup of value 3: others (1, 5): all-mean 3; quantity (6 + 3) / 3 = 3; class (1 + 3) / 2 = 2
     assert off[2] == 2.0
+
+
+def test_offsets_take_other_recordings_box_edges_of_the_class():
+    """Class offsets with extra evidence (the box edges of the same classes in another task): an entry
+    of the row's own recording never enters its offset, nor one equal to a row's own (key, value)."""
+    import numpy as np
+
+    from resti_lib.options.population import hierarchical_offsets
+
+    keys = [("q", "sedan"), ("q", "bus")]
+    b0 = np.array([1.0, 3.0])
+    extra = ([("q", "sedan"), ("q", "sedan"), ("q", "bus"), ("q", "sedan")], [2.0, 6.0, 5.0, 1.0],
+             ["g1", "g2", "g3", "g2"])
+    off = hierarchical_offsets(keys, b0, 1.0, groups=["g1", "g3"], extra=extra)
+    # the sedan row (recording g1): its own box (2.0, g1) and the copy of its value (1.0) stay out.
+    # Entries left: bus 3, sedan 6, bus 5 -> all-mean 14/3; quantity (14 + 14/3) / (3 + 1) = 14/3;
+    # class: sedan 6 alone -> (6 + 14/3) / (1 + 1) = 16/3
+    assert abs(off[0] - 16 / 3) < 1e-12
+    # the bus row (g3): its own box (5.0) stays out. Entries: sedan 1, 2, 6 -> all-mean 3; quantity 3;
+    # class: no other bus -> (0 + 3) / (0 + 1) = 3
+    assert abs(off[1] - 3.0) < 1e-12
+    # without the extra evidence: the sedan's class has no other entry, so it takes the mean of the bus (3)
+    assert hierarchical_offsets(keys, b0, 1.0)[0] == 3.0

@@ -375,7 +375,8 @@ def lattice_scores(z_a: np.ndarray, n: int, width: float, rng: np.random.Generat
     return ndtri(np.clip(q, _P_MIN, 1.0 - _P_MIN))[:, :, None]
 
 
-def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.ndarray:
+def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, groups: list | None = None,
+                         extra: tuple | None = None) -> np.ndarray:
     """Leave-one-out means of ``b0`` per nested key, each level shrunk towards its parent.
 
     ``keys[i]`` is a tuple of levels for row i, e.g. ``(quantity, subject_class)``: the offset of a
@@ -385,6 +386,11 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.
     again, in another recording or a copy of the release): each distinct (key, value) counts once,
     so an attacker who knows the typical value of a class learns nothing the distractors do not
     share, and repeated answers do not pull their class's offset onto themselves.
+
+    ``extra``: ``(keys, values, groups)`` of further evidence that enters the means but gets no
+    offset (the box edges of the same classes asked in another task); an entry of the row's own
+    group (``groups[i]``, its recording) never enters the row's offset, nor does one equal to a row's
+    own (key, value).
     """
     b0 = np.asarray(b0, float)
     one = b0.ndim == 1
@@ -398,22 +404,49 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float) -> np.
     first = {u: i for i, u in reversed(list(enumerate(row_of)))}
     ub = np.array([b0[first[u]] for u in range(len(ids))]) if ids else b0[:0]
     n = len(ukeys)
-    tot = ub.sum(axis=0)
+    # extra evidence: distinct (key, value) not already a row's, with the groups that hold it
+    xs: dict = {}
+    if extra is not None:
+        for k, v, grp in zip(*extra):
+            v = np.atleast_1d(np.asarray(v, float))
+            ident = (tuple(k), tuple(np.round(v, 9)))
+            if ident in ids:
+                continue
+            xs.setdefault(ident, (v, set()))[1].add(grp)
+    xkeys = [k for k, _ in xs]
+    xb = np.array([v for v, _ in xs.values()]).reshape(len(xs), ub.shape[1]) if xs else np.zeros((0, ub.shape[1]))
+    tot = ub.sum(axis=0) + xb.sum(axis=0)
+    n_all = n + len(xkeys)
     out_u = np.zeros_like(ub)
-    depth = max((len(k) for k in ukeys), default=0)
+    depth = max((len(k) for k in ukeys + xkeys), default=0)
     sums: list[dict] = []
     for lv in range(1, depth + 1):
         acc: dict = defaultdict(lambda: [np.zeros(ub.shape[1]), 0])
-        for i, k in enumerate(ukeys):
+        for k, v in [*zip(ukeys, ub), *zip(xkeys, xb)]:
             a = acc[k[:lv]]
-            a[0] = a[0] + ub[i]
+            a[0] = a[0] + v
             a[1] += 1
         sums.append(acc)
+    # the extra evidence each group holds (left out of its own rows' offsets)
+    own_x: dict = defaultdict(list)
+    for j, (_, grps) in enumerate(xs.values()):
+        for grp in grps:
+            own_x[grp].append(j)
+    row_groups: dict = defaultdict(set)
+    if groups is not None:
+        for i, grp in enumerate(groups):
+            row_groups[row_of[i]].add(grp)
     for i, k in enumerate(ukeys):
-        m = (tot - ub[i]) / max(n - 1, 1)
+        # a distinct entry held by rows of several groups: its offset leaves out the extra
+        # evidence of each of them (one offset per distinct entry)
+        drop = sorted({j for grp in row_groups.get(i, ()) for j in own_x.get(grp, ())})
+        dsum = xb[drop].sum(axis=0) if drop else np.zeros(ub.shape[1])
+        m = (tot - ub[i] - dsum) / max(n_all - 1 - len(drop), 1)
         for lv in range(1, len(k) + 1):
             s_, c_ = sums[lv - 1][k[:lv]]
-            m = ((s_ - ub[i]) + kappa * m) / (c_ - 1 + kappa)
+            dl = [j for j in drop if xkeys[j][:lv] == k[:lv]]
+            s_ = s_ - ub[i] - (xb[dl].sum(axis=0) if dl else 0.0)
+            m = (s_ + kappa * m) / (c_ - 1 - len(dl) + kappa)
         out_u[i] = m
     out = out_u[row_of] if len(keys) else np.zeros_like(b0)
     return out[:, 0] if one else out

@@ -49,7 +49,7 @@ from .. import LETTERS
 from .. import values as V
 from ..errors import InputError, OptionError
 from ..rng import row_rng, stable_seed
-from .follow import FOLLOWS, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
+from .follow import FOLLOWS, box_edge_map, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
 from .spec import (
@@ -102,6 +102,9 @@ class Stage:
         self.strings: dict[str, list[str]] = {}  # the five candidate strings of each row built
         self.reveals: dict = {}
         self.s_factors: dict = {}
+        # which box edge a dimension question asks, per source (class evidence for sizes)
+        self.edge_map = box_edge_map([p.spec for p in self.plans] + [sp for sp, _ in self.peers.values()],
+                                     self.params.get("follow") or {})
         self._plan()
 
     # -------------------------------------------------------------------- planning

@@ -9,6 +9,7 @@ from collections import defaultdict
 import numpy as np
 
 from ... import values as V
+from ..follow import DIMENSIONS
 from ..plan import OBJECT_SIZES, WINDOWED, GroupModel, Reject, RowPlan, log_window, mid_time, slot_rows, slot_subgroup
 from ..population import FieldModel, hierarchical_offsets
 from ..spec import (
@@ -37,7 +38,9 @@ class ScalarKind(KindBuilder):
             ow = np.array([log_window(p.spec) if p.spec.obs.quantity in WINDOWED else 0.0 for p in moving])
             ow = np.where(np.isfinite(ow), ow, 0.0)
             keys = [(p.spec.source, p.spec.obs.quantity, p.spec.obs.subject_class) for p in moving]
-            oc = hierarchical_offsets(keys, b0 - ow, st.model["class_shrink"])
+            oc = hierarchical_offsets(keys, b0 - ow, st.model["class_shrink"],
+                                      groups=[p.spec.obs.sequence for p in moving],
+                                      extra=size_evidence(st, moving, eps))
             off = ow + oc
             for p, o in zip(moving, off):
                 info["offset"][p.rid] = float(o)
@@ -52,7 +55,14 @@ class ScalarKind(KindBuilder):
             # few units as the anchor model would, so they take one stratum of the distribution each
             units = float(np.median([p.spec.value.value / p.spec.ulp for p in moving]))
             lat = st.model["lattice"]
-            if units < float(lat["below_units"]):
+            # narrow populations too: where the middle half of the class-relative answers spans few
+            # separation floors (vehicle lengths: 7 floors of 3%), five separated candidates cannot
+            # stay inside it, and the sets kept lean to its wider side (the answer the smallest)
+            q1, q3 = np.percentile(b0 - off, [25, 75])
+            floors = float((q3 - q1) / max(2.0 * float(np.median(H)), 1e-12))
+            info["iqr_floors"] = floors
+            narrow = len(moving) >= int(st.model["min_group"]) and floors < float(lat.get("below_floors", 0))
+            if units < float(lat["below_units"]) or narrow:
                 info["lattice"] = float(lat["width"])
             fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=st.model["knn"],
                                 shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
@@ -63,16 +73,22 @@ class ScalarKind(KindBuilder):
         gm_reuse = GroupModel("scalar", None, {})
         fit_reuse(gm_reuse, ps)
         info.update(gm_reuse.info)
-        carriers: set = set()
+        # exact zeros, and where a subgroup has none, answers at its smallest printable value (objects
+        # that touch: 0.01 m): nothing prints below them, so each is a fixed slot carried as often by
+        # other rows as a distractor (a floor answer drawn like the others is always the smallest)
         for sub in sorted({slot_subgroup(p.spec) for p in ps}, key=str):
-            zs = [p.rid for p in ps if p.spec.value.value <= 0 and slot_subgroup(p.spec) == sub]
-            ms = [p.rid for p in moving if slot_subgroup(p.spec) == sub]
-            carriers |= slot_rows(zs, ms, st.model["zero_slot_ratio"], seed=st.seed, group=f"{g}|{sub}")
-        for p in ps:
-            if p.rid in carriers:  # the zero printed like the row's own answer
-                zero = V.format_scalar(0.0, p.spec.unit, p.spec.decimals)
-                p.fixed = (zero if p.spec.value.value > 0 else p.spec.detail,)
-                p.answer_is_fixed = p.spec.value.value <= 0
+            mine = [p for p in ps if slot_subgroup(p.spec) == sub]
+            zs = [p for p in mine if p.spec.value.value <= 0]
+            if not zs:
+                zs = [p for p in mine if abs(p.spec.value.value - p.spec.ulp) < 1e-9 * p.spec.ulp]
+            floor = {p.rid for p in zs}
+            ms = [p.rid for p in mine if p.spec.value.value > 0 and p.rid not in floor]
+            carriers = slot_rows(sorted(floor), ms, st.model["zero_slot_ratio"], seed=st.seed, group=f"{g}|{sub}")
+            for p in mine:
+                if p.rid in carriers:  # the slot value printed like the row's own answer
+                    slot = zs[0].spec.value.value
+                    p.answer_is_fixed = p.rid in floor
+                    p.fixed = (p.spec.detail if p.answer_is_fixed else V.format_scalar(slot, p.spec.unit, p.spec.decimals),)
         return GroupModel("scalar", fm, info)
 
     def build(self, st, p, gm, s, rng, strict, reveals):
@@ -144,6 +160,32 @@ class ScalarKind(KindBuilder):
         return out if len(set(out)) == 5 else None
 
 
+def size_evidence(st, ps: list, eps: float) -> tuple[list, list, list] | None:
+    """The sizes of the classes of a group's rows that the boxes of another task state: for each box
+    of the stage (or a peer row) of the rows' sources, its edge that a dimension question of that
+    source asks (:func:`resti_lib.options.follow.box_edge_map`), in the rows' unit and printing, as
+    (keys, base values, recordings) for :func:`hierarchical_offsets`. A class asked once or twice as a
+    dimension (a sedan's length) is then placed by every sedan box of the other recordings, not by the
+    group's mean, which its buses and trucks pull up."""
+    want = {(p.spec.source, p.spec.obs.quantity): p.spec for p in ps if p.spec.obs.quantity in DIMENSIONS}
+    edge = {k: st.edge_map[k] for k in want if k in st.edge_map}
+    if not edge:
+        return None
+    keys, vals, grps = [], [], []
+    boxes = [p.spec for p in st.plans if p.spec.kind == "box"] + [sp for sp, _ in st.peers.values() if sp.kind == "box"]
+    for b in boxes:
+        for (src, q), j in edge.items():
+            if b.source != src or not isinstance(b.value, V.Box):
+                continue
+            like = want[(src, q)]
+            x = round(float(b.value.lwh[j]) / like.value.si_per_unit, like.decimals)
+            if x > 0:
+                keys.append((src, q, b.obs.subject_class))
+                vals.append(math.log(x + eps))
+                grps.append(b.obs.sequence)
+    return (keys, vals, grps) if keys else None
+
+
 def fit_reuse(gm: GroupModel, ps: list) -> None:
     """Answers that recur in other recordings (the same object asked in two scenes): the share of
     rows whose answer is the answer of a row of another source sequence, and those values. A
@@ -163,7 +205,10 @@ def fit_reuse(gm: GroupModel, ps: list) -> None:
     if rate < 0.05:
         return
     gm.info["reuse_rate"] = rate
-    gm.info["reuse_values"] = np.array(sorted(seqs))
+    # only the values that recur: a value answered in one recording and taken as a distractor in others
+    # is seen elsewhere only as a distractor, which is how a reader of the other recordings would
+    # tell the row where it is the answer
+    gm.info["reuse_values"] = np.array(sorted(x for x, q in seqs.items() if len(q) >= 2))
     gm.info["reuse_seqs"] = seqs
 
 
