@@ -847,13 +847,15 @@ def test_yaw_tilt_heading_and_lean_by_hand():
 def test_answers_at_the_printing_floor_are_slots_other_rows_carry():
     """Objects that touch print 0.01 m apart: nothing prints below that, so a floor answer drawn like
     the others is always the smallest candidate. It is a fixed slot instead, carried as a distractor by
-    ``zero_slot_ratio`` (4) other rows per floor answer: where 0.01 m is offered it is the answer one
-    time in five (old code: 10 of the 10 rows offering it, each a floor answer)."""
+    ``zero_slot_ratio`` (4) other rows per floor answer (old code: 0.01 m offered only where it is the
+    answer). With 15 floor answers in 60 rows every row carries it, so it is the answer in a quarter of
+    them: the structural table names it and the evaluation subset keeps floor answers at one in five
+    (11 of the 45 others / 4), dropping 4 as ``zero_slot``."""
     rng = np.random.default_rng(8)
     rows, floor = [], set()
     for i in range(60):
-        x = 0.01 if i % 6 == 0 else float(np.exp(rng.normal(math.log(0.4), 0.8))) + 0.02
-        if i % 6 == 0:
+        x = 0.01 if i % 4 == 0 else float(np.exp(rng.normal(math.log(0.4), 0.8))) + 0.02
+        if i % 4 == 0:
             floor.add(f"r{i}")
         q = (f"What is the minimum surface-to-surface distance between the chair number {i} and the table "
              f"next to it? (unit: m)")
@@ -863,12 +865,17 @@ def test_answers_at_the_printing_floor_are_slots_other_rows_carry():
     offered = [r for r in out if "0.01m" in r["Candidates"].values()]
     answered = {r["ReSTI ID"] for r in offered if r["Candidates"][r["Answer"]] == "0.01m"}
     assert answered == floor
-    # 10 floor answers, 40 rows carrying 0.01 m (a row's own draw may print it too)
-    assert 5 * len(floor) <= len(offered) <= 5 * len(floor) + 3
-    # in every row carrying it, 0.01 m is the smallest candidate and the answer is not
-    for r in offered:
-        vals = {L: V.parse(s).value for L, s in r["Candidates"].items()}
-        assert min(vals.values()) == 0.01
+    assert len(offered) == 60  # 15 answers and all 45 others (4 x 15 = 60 wanted)
+    for r in offered:  # the smallest candidate in every row
+        assert min(V.parse(s).value for s in r["Candidates"].values()) == 0.01
+    leaks = structural_leaks(out, IFACE)
+    slot = leaks[leaks["leak"] == "zero_slot"]
+    assert len(slot) == 1 and slot["rows_affected"].iloc[0] == 60 and slot["accuracy_on_affected"].iloc[0] == 0.25
+    sub = evaluation_subset(out, IFACE)
+    dropped = {d["id"] for d in sub["dropped"] if d["reason"] == "zero_slot"}
+    assert len(dropped) == 4 and dropped <= floor
+    kept = [r for r in out if r["ReSTI ID"] in set(sub["ids"])]
+    assert sum(r["Candidates"][r["Answer"]] == "0.01m" for r in kept) == 11 and len(kept) == 56
 
 
 def test_a_population_narrower_than_the_floors_is_drawn_on_the_lattice():

@@ -5,6 +5,7 @@ and slots, the letter schedule, and the reject signal of a candidate set."""
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -147,6 +148,27 @@ def slot_subgroup(spec: OptionSpec) -> tuple:
     one kind of question than another."""
     o = spec.obs
     return (o.quantity, o.is_camera, o.window_s is None)
+
+
+def slot_answers(specs: list) -> dict[tuple, list[int]]:
+    """Answers printed where no candidate can print below them, per :func:`slot_subgroup` (indices into
+    ``specs``): exact zeros (stationary objects), and in a subgroup without one, the answers at its
+    smallest printable value (one printed unit: objects that touch, 0.01 m). Each is one string that,
+    drawn like the other answers, would always be the smallest candidate: the option stage makes it a
+    fixed slot that other rows carry as a distractor (``model.zero_slot_ratio`` per such answer), and
+    the evaluation subset keeps such answers at one row in five."""
+    subs: dict[tuple, list[int]] = defaultdict(list)
+    for i, s in enumerate(specs):
+        if s.kind == "scalar":
+            subs[slot_subgroup(s)].append(i)
+    out = {}
+    for sub, ids in sorted(subs.items(), key=lambda t: str(t[0])):
+        zs = [i for i in ids if specs[i].value.value <= 0]
+        if not zs:
+            zs = [i for i in ids if abs(specs[i].value.value - specs[i].ulp) < 1e-9 * specs[i].ulp]
+        if zs:
+            out[sub] = zs
+    return out
 
 
 def recorded_decimals(values, max_decimals: int) -> int:

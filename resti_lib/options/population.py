@@ -26,8 +26,9 @@ anchor ``c ~ N(0, (1 - s²) I)`` and five candidates ``z_j = c + s·e_j`` are ex
 other four follow.
 
 Coarsely printed magnitudes (a group whose median answer is under ``model.lattice.below_units``
-printed units, such as speeds of a hand-held camera at 0.01 m/s) are drawn on a *quantile lattice*
-instead (:func:`lattice_scores`): five candidates a printed unit apart cannot crowd an answer of a few
+printed units, such as speeds of a hand-held camera at 0.01 m/s) and narrow populations (the middle
+half of the answers spans under ``model.lattice.below_floors`` separation floors) are drawn on a
+*quantile lattice* instead (:func:`lattice_scores`): five candidates a printed unit apart cannot crowd an answer of a few
 units the way the anchor model's would, and the widened sets that survive separation made the answer
 the most typical candidate. On the lattice each candidate takes one of five strata of equal
 probability (random offset), so the set is exchangeable under the model whatever the separation

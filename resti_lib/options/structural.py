@@ -50,7 +50,7 @@ from ..errors import InputError
 from ..rng import stable_seed
 from .checks import parse_row
 from .observables import relation_parts
-from .plan import dense_window, share_key
+from .plan import dense_window, share_key, slot_answers
 from .spec import Interface, angle_gap, scalar_gap, spec_of
 
 CHANCE = 0.2
@@ -100,7 +100,6 @@ def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
     for s in sp:
         by_q[s.obs.quantity].append(s)
     for q, ss in sorted(by_q.items()):
-        vals = np.array([s.value.value for s in ss], float)
         nonzero = [s for s in ss if kind == "angle" or s.value.value > 0]
         if kind == "angle":
             gaps = np.array([angle_gap(s, params) for s in nonzero])
@@ -112,11 +111,12 @@ def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
             if bound > CHANCE and inside >= 5:
                 out.append(("floor_concentration", inside, 1.0 / slots, f"{q}: {where}",
                             "none by options; re-contract the questions or accept and report"))
-        zeros = int((vals <= 0).sum()) if kind == "scalar" else 0
+        zeros = sum(len(v) for v in slot_answers(ss).values()) if kind == "scalar" else 0
         if zeros and zeros / len(ss) > CHANCE:
             carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
             out.append(("zero_slot", carriers, zeros / carriers,
-                        f"{q}: {zeros} of {len(ss)} answers are exactly zero; the zero string appears in {carriers} rows",
+                        f"{q}: {zeros} of {len(ss)} answers are exactly zero or at the printing floor; "
+                        f"that string appears in {carriers} rows",
                         "evaluation subset keeps zero answers at one row in five"))
     return out
 
@@ -440,14 +440,15 @@ def _drop_relation_forced(c: _Selection) -> None:
 
 
 def _cap_zero_answers(c: _Selection) -> None:
-    """Exact-zero answers at most one in five of their group."""
+    """Slot answers (exact zeros, answers at the printing floor: :func:`plan.slot_answers`) at most one
+    in five of their group."""
     specs, rid, drop, rng = c.specs, c.rid, c.drop, c.rng
     zgroups: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
             zgroups[(s.task, s.source, s.obs.quantity)].append(i)
     for _, ids in sorted(zgroups.items()):
-        zeros = [i for i in ids if specs[i].value.value <= 0]
+        zeros = sorted(ids[j] for js in slot_answers([specs[i] for i in ids]).values() for j in js)
         nz = len(ids) - len(zeros)
         allow = nz // 4
         if len(zeros) > allow:

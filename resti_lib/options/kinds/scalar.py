@@ -1,5 +1,5 @@
 """Scalars: magnitudes drawn as log rates over the question's window, relative to their subject's
-class; exact zeros as slots; sizes that recur elsewhere reused as often as the answers."""
+class; exact zeros and floor answers as slots; sizes that recur elsewhere reused as often as the answers."""
 
 from __future__ import annotations
 
@@ -10,7 +10,18 @@ import numpy as np
 
 from ... import values as V
 from ..follow import DIMENSIONS
-from ..plan import OBJECT_SIZES, WINDOWED, GroupModel, Reject, RowPlan, log_window, mid_time, slot_rows, slot_subgroup
+from ..plan import (
+    OBJECT_SIZES,
+    WINDOWED,
+    GroupModel,
+    Reject,
+    RowPlan,
+    log_window,
+    mid_time,
+    slot_answers,
+    slot_rows,
+    slot_subgroup,
+)
 from ..population import FieldModel, hierarchical_offsets
 from ..spec import (
     scalar_bounds,
@@ -73,22 +84,20 @@ class ScalarKind(KindBuilder):
         gm_reuse = GroupModel("scalar", None, {})
         fit_reuse(gm_reuse, ps)
         info.update(gm_reuse.info)
-        # exact zeros, and where a subgroup has none, answers at its smallest printable value (objects
-        # that touch: 0.01 m): nothing prints below them, so each is a fixed slot carried as often by
-        # other rows as a distractor (a floor answer drawn like the others is always the smallest)
-        for sub in sorted({slot_subgroup(p.spec) for p in ps}, key=str):
-            mine = [p for p in ps if slot_subgroup(p.spec) == sub]
-            zs = [p for p in mine if p.spec.value.value <= 0]
-            if not zs:
-                zs = [p for p in mine if abs(p.spec.value.value - p.spec.ulp) < 1e-9 * p.spec.ulp]
+        # slot answers (exact zeros, answers at the printing floor: plan.slot_answers) are fixed strings
+        # that other rows carry as distractors, as often as zero_slot_ratio says
+        specs = [p.spec for p in ps]
+        slots = slot_answers(specs)
+        for sub in sorted({slot_subgroup(x) for x in specs}, key=str):
+            zs = [ps[i] for i in slots.get(sub, [])]
             floor = {p.rid for p in zs}
-            ms = [p.rid for p in mine if p.spec.value.value > 0 and p.rid not in floor]
+            ms = [p.rid for p in ps if slot_subgroup(p.spec) == sub and p.spec.value.value > 0 and p.rid not in floor]
             carriers = slot_rows(sorted(floor), ms, st.model["zero_slot_ratio"], seed=st.seed, group=f"{g}|{sub}")
-            for p in mine:
+            for p in ps:
                 if p.rid in carriers:  # the slot value printed like the row's own answer
-                    slot = zs[0].spec.value.value
                     p.answer_is_fixed = p.rid in floor
-                    p.fixed = (p.spec.detail if p.answer_is_fixed else V.format_scalar(slot, p.spec.unit, p.spec.decimals),)
+                    p.fixed = (p.spec.detail if p.answer_is_fixed else
+                               V.format_scalar(zs[0].spec.value.value, p.spec.unit, p.spec.decimals),)
         return GroupModel("scalar", fm, info)
 
     def build(self, st, p, gm, s, rng, strict, reveals):
