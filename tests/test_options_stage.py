@@ -974,3 +974,23 @@ def test_distractors_take_only_values_that_recur_as_answers():
         low = [L for L in rate if rate[L] == min(rate.values())]
         hits += (r["Answer"] in low) / len(low)
     assert binomtest(int(round(hits)), len(out), 0.2, alternative="greater").pvalue > 0.01, hits / len(out)
+
+
+def test_a_parked_cars_floor_speed_is_a_slot_beside_the_zero():
+    """Object speeds: 15 parked cars at exactly 0, 15 at 0.01 m/s (the printing floor, just above the
+    zero) and 70 others. Drawn like the others, 0.01 m/s is always the smallest candidate above the zero
+    slot (old code, v5 Waymo Speed at seed 2: the answer in 8 of the 18 rows offering it, which the
+    learned attacker read). Both are slots now, each carried by four other rows per answer: each is the
+    answer in exactly one of the five rows that offer it."""
+    rng = np.random.default_rng(12)
+    rows = []
+    for i in range(100):
+        x = 0.0 if i % 20 < 3 else 0.01 if i % 20 < 6 else float(np.exp(rng.normal(math.log(1.5), 1.2))) + 0.02
+        q = f"What is the speed of the suv number {i} at t=4 s? (unit: m/s)"
+        rows.append(_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(x, "m/s"),
+                         video=f"seg{i}_camera_1.mp4", t0=4.0, t1=4.0))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+    for slot in ("0.00m/s", "0.01m/s"):
+        offered = [r for r in out if slot in r["Candidates"].values()]
+        answered = [r for r in offered if r["Candidates"][r["Answer"]] == slot]
+        assert len(answered) == 15 and len(offered) == 75, (slot, len(answered), len(offered))

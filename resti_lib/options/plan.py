@@ -151,12 +151,13 @@ def slot_subgroup(spec: OptionSpec) -> tuple:
 
 
 def slot_answers(specs: list) -> dict[tuple, list[int]]:
-    """Answers printed where no candidate can print below them, per :func:`slot_subgroup` (indices into
-    ``specs``): exact zeros (stationary objects), and in a subgroup without one, the answers at its
-    smallest printable value (one printed unit: objects that touch, 0.01 m). Each is one string that,
-    drawn like the other answers, would always be the smallest candidate: the option stage makes it a
-    fixed slot that other rows carry as a distractor (``model.zero_slot_ratio`` per such answer), and
-    the evaluation subset keeps such answers at one row in five."""
+    """Answers printed where no candidate can print below them, per (:func:`slot_subgroup`, value)
+    (indices into ``specs``): exact zeros (stationary objects) and answers at the smallest printable
+    value (one printed unit: objects that touch, 0.01 m; a parked car's 0.01 m/s just above the zeros).
+    Each is one string that, drawn like the other answers, would always be the smallest candidate (or
+    the smallest above the zero): the option stage makes it a fixed slot that other rows carry as a
+    distractor (``model.zero_slot_ratio`` per such answer), and the evaluation subset keeps such answers
+    at one row in five."""
     subs: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s.kind == "scalar":
@@ -164,10 +165,11 @@ def slot_answers(specs: list) -> dict[tuple, list[int]]:
     out = {}
     for sub, ids in sorted(subs.items(), key=lambda t: str(t[0])):
         zs = [i for i in ids if specs[i].value.value <= 0]
-        if not zs:
-            zs = [i for i in ids if abs(specs[i].value.value - specs[i].ulp) < 1e-9 * specs[i].ulp]
         if zs:
-            out[sub] = zs
+            out[(sub, 0.0)] = zs
+        fl = [i for i in ids if abs(specs[i].value.value - specs[i].ulp) < 1e-9 * specs[i].ulp]
+        if fl:
+            out[(sub, float(specs[fl[0]].value.value))] = fl
     return out
 
 

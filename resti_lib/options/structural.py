@@ -448,14 +448,14 @@ def _cap_zero_answers(c: _Selection) -> None:
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
             zgroups[(s.task, s.source, s.obs.quantity)].append(i)
     for _, ids in sorted(zgroups.items()):
-        zeros = sorted(ids[j] for js in slot_answers([specs[i] for i in ids]).values() for j in js)
-        nz = len(ids) - len(zeros)
-        allow = nz // 4
-        if len(zeros) > allow:
-            pick = set(rng.permutation(len(zeros))[:allow].tolist())
-            for j, i in enumerate(zeros):
-                if j not in pick:
-                    drop[rid[i]] = "zero_slot"
+        for _, js in sorted(slot_answers([specs[i] for i in ids]).items(), key=lambda t: (str(t[0][0]), t[0][1])):
+            zeros = sorted(ids[j] for j in js)
+            allow = (len(ids) - len(zeros)) // 4
+            if len(zeros) > allow:
+                pick = set(rng.permutation(len(zeros))[:allow].tolist())
+                for j, i in enumerate(zeros):
+                    if j not in pick:
+                        drop[rid[i]] = "zero_slot"
 
 
 #: The steps of :func:`evaluation_subset`, in order (each sees the rows the earlier ones kept).

@@ -86,18 +86,25 @@ class ScalarKind(KindBuilder):
         info.update(gm_reuse.info)
         # slot answers (exact zeros, answers at the printing floor: plan.slot_answers) are fixed strings
         # that other rows carry as distractors, as often as zero_slot_ratio says
-        specs = [p.spec for p in ps]
-        slots = slot_answers(specs)
-        for sub in sorted({slot_subgroup(x) for x in specs}, key=str):
-            zs = [ps[i] for i in slots.get(sub, [])]
-            floor = {p.rid for p in zs}
-            ms = [p.rid for p in ps if slot_subgroup(p.spec) == sub and p.spec.value.value > 0 and p.rid not in floor]
-            carriers = slot_rows(sorted(floor), ms, st.model["zero_slot_ratio"], seed=st.seed, group=f"{g}|{sub}")
-            for p in ps:
-                if p.rid in carriers:  # the slot value printed like the row's own answer
-                    p.answer_is_fixed = p.rid in floor
-                    p.fixed = (p.spec.detail if p.answer_is_fixed else
-                               V.format_scalar(zs[0].spec.value.value, p.spec.unit, p.spec.decimals),)
+        slots = slot_answers([p.spec for p in ps])
+        carried: dict[str, list] = defaultdict(list)
+        first: set = set()
+        for (sub, value), idx in sorted(slots.items(), key=lambda t: (str(t[0][0]), t[0][1])):
+            answers = {ps[i].rid for i in idx}
+            # a zero is carried by moving rows; the floor by any other row of its subgroup (the zeros too)
+            others = [p.rid for p in ps if slot_subgroup(p.spec) == sub and p.rid not in answers
+                      and (value > 0 or p.spec.value.value > 0)]
+            tag = f"{g}|{sub}" if sub not in first else f"{g}|{sub}|{value:g}"
+            first.add(sub)
+            for rid in sorted(slot_rows(sorted(answers), others, st.model["zero_slot_ratio"], seed=st.seed,
+                                        group=tag)):
+                carried[rid].append(None if rid in answers else value)
+        for p in ps:
+            if p.rid in carried:  # the row's own answer first, then the slot values it carries
+                own = None in carried[p.rid]
+                p.answer_is_fixed = own
+                p.fixed = tuple(([p.spec.detail] if own else []) +
+                                [V.format_scalar(x, p.spec.unit, p.spec.decimals) for x in carried[p.rid] if x is not None])
         return GroupModel("scalar", fm, info)
 
     def build(self, st, p, gm, s, rng, strict, reveals):
