@@ -928,7 +928,7 @@ def test_a_dimension_learns_its_box_edge_and_its_class_from_other_recordings_box
                          t0=3.0, t1=3.0))
         i += 2
     st = Stage(rows, iface=IFACE, seed=0)
-    assert box_edge_map([p.spec for p in st.plans], {}) == {("Waymo", "length"): 0}
+    assert box_edge_map(st.box_links.values(), {p.rid: p.spec for p in st.plans}) == {("Waymo", "length"): 0}
     g = next(p.group for p in st.plans if p.spec.task == "Dimensional Measurement")
     off = st.groups[g].info["offset"]
     eps = st.groups[g].info["eps"]

@@ -196,28 +196,23 @@ def find_box_links(f: OptionSpec, drivers: list[OptionSpec], params: dict) -> li
     return sorted(out, key=lambda lk: lk.edge)
 
 
-def box_edge_map(specs: list[OptionSpec], params: dict, *, min_links: int = 3, min_share: float = 0.8) -> dict:
+def box_edge_map(links, specs: dict, *, min_links: int = 3, min_share: float = 0.8) -> dict:
     """Which edge of a box a dimension question asks, per (source, quantity): the edge its answers
-    match in the boxes of the same subject in their recordings (:func:`find_box_links`), where at
-    least ``min_links`` links agree on one edge in at least ``min_share`` of them (Waymo: a length is
-    the box's first edge; ScanNet: a height its third). A source whose links disagree (its boxes' axes
-    follow no fixed convention) gets none."""
-    drivers: dict[str, list[OptionSpec]] = {}
-    for s in specs:
-        if s.obs.quantity in DIMENSIONS and isinstance(s.value, V.Scalar):
-            drivers.setdefault(s.obs.sequence, []).append(s)
-    by_id = {s.rid: s for s in specs}
+    match in the boxes of the same subject in their recordings (``links``: each box row's
+    :func:`find_box_links`; ``specs``: rid -> spec of their drivers), where at least ``min_links``
+    links agree on one edge in at least ``min_share`` of them (Waymo: a length is the box's first edge;
+    ScanNet: a height its third). A source whose links disagree (its boxes' axes follow no fixed
+    convention) gets none."""
     counts: dict[tuple, dict[int, int]] = {}
-    for f in specs:
-        for link in find_box_links(f, drivers.get(f.obs.sequence, []), params) if f.kind == "box" else []:
-            d = by_id[link.driver]
+    for box in links:
+        for link in box:
+            d = specs[link.driver]
             c = counts.setdefault((d.source, d.obs.quantity), {})
             c[link.edge] = c.get(link.edge, 0) + 1
     out = {}
     for key, c in sorted(counts.items()):
         edge, n = max(sorted(c.items()), key=lambda t: t[1])
-        total = sum(c.values())
-        if n >= min_links and n >= min_share * total:
+        if n >= min_links and n >= min_share * sum(c.values()):
             out[key] = edge
     return out
 

@@ -157,7 +157,7 @@ def slot_answers(specs: list) -> dict[tuple, list[int]]:
     Each is one string that, drawn like the other answers, would always be the smallest candidate (or
     the smallest above the zero): the option stage makes it a fixed slot that other rows carry as a
     distractor (``model.zero_slot_ratio`` per such answer), and the evaluation subset keeps such answers
-    at one row in five."""
+    at one row in five. Ordered by subgroup, the zero before the floor."""
     subs: dict[tuple, list[int]] = defaultdict(list)
     for i, s in enumerate(specs):
         if s.kind == "scalar":

@@ -102,9 +102,18 @@ class Stage:
         self.strings: dict[str, list[str]] = {}  # the five candidate strings of each row built
         self.reveals: dict = {}
         self.s_factors: dict = {}
-        # which box edge a dimension question asks, per source (class evidence for sizes)
-        self.edge_map = box_edge_map([p.spec for p in self.plans] + [sp for sp, _ in self.peers.values()],
-                                     self.params.get("follow") or {})
+        # the rows of each recording that other rows may follow, the dimension rows each box matches
+        # (its edges follow them), and from those which box edge a dimension question asks per source
+        # (class evidence for sizes)
+        self.drivers: dict[str, list[OptionSpec]] = defaultdict(list)
+        for spec in [p.spec for p in self.plans] + [sp for sp, _ in self.peers.values()]:
+            if spec.obs.quantity in DRIVER_QUANTITIES:
+                self.drivers[spec.obs.sequence].append(spec)
+        follow = self.params.get("follow") or {}
+        self.box_links = {p.rid: find_box_links(p.spec, self.drivers.get(p.spec.obs.sequence, []), follow)
+                          for p in self.plans if p.spec.kind == "box"}
+        self.edge_map = box_edge_map(self.box_links.values(),
+                                     {**{p.rid: p.spec for p in self.plans}, **{r: sp for r, (sp, _) in self.peers.items()}})
         self._plan()
 
     # -------------------------------------------------------------------- planning
@@ -166,19 +175,13 @@ class Stage:
         that draws its own set (not shared, coupled or fixed) and a driver of its recording — a row
         of this stage or an already built peer — whose answer relates to its answer."""
         follow = self.params.get("follow") or {}
-        drivers: dict[str, list[OptionSpec]] = defaultdict(list)
-        for p in self.plans:
-            if p.spec.obs.quantity in DRIVER_QUANTITIES:
-                drivers[p.spec.obs.sequence].append(p.spec)
-        for spec, _ in self.peers.values():
-            if spec.obs.quantity in DRIVER_QUANTITIES:
-                drivers[spec.obs.sequence].append(spec)
+        drivers = self.drivers
         for p in self.plans:  # a coupled row follows its driver where its translate fails the row's checks
             if p.share_with is not None or p.fixed or p.answer_is_fixed:
                 continue
             if p.spec.obs.quantity in FOLLOWS and drivers.get(p.spec.obs.sequence):
                 if p.spec.kind == "box":
-                    p.box_links = find_box_links(p.spec, drivers[p.spec.obs.sequence], follow)
+                    p.box_links = self.box_links[p.rid]
                 else:
                     p.link = find_link(p.spec, drivers[p.spec.obs.sequence], follow)
         # the residuals of the links (the follower's answer against what its driver's answer gives), per

@@ -448,7 +448,7 @@ def _cap_zero_answers(c: _Selection) -> None:
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
             zgroups[(s.task, s.source, s.obs.quantity)].append(i)
     for _, ids in sorted(zgroups.items()):
-        for _, js in sorted(slot_answers([specs[i] for i in ids]).items(), key=lambda t: (str(t[0][0]), t[0][1])):
+        for js in slot_answers([specs[i] for i in ids]).values():
             zeros = sorted(ids[j] for j in js)
             allow = (len(ids) - len(zeros)) // 4
             if len(zeros) > allow:
@@ -487,7 +487,7 @@ def evaluation_subset(records: list[dict], iface: Interface, leaks: pd.DataFrame
                  "narrower than the separation floor that holds more than a fifth of their cell (forced by the "
                  "floor) are left out with every row whose candidates touch that window; rows "
                  "whose answer every candidate of a related row predicts to within half the floor are left out; "
-                 "exact-zero answers are kept at "
+                 "slot answers (exact zeros, answers at the printing floor) are kept at "
                  "most one in five of their group. Selection seeded; the release is unchanged."),
         "seed": int(seed),
         "n_release": len(rid),

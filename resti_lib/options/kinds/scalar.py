@@ -71,7 +71,6 @@ class ScalarKind(KindBuilder):
             # stay inside it, and the sets kept lean to its wider side (the answer the smallest)
             q1, q3 = np.percentile(b0 - off, [25, 75])
             floors = float((q3 - q1) / max(2.0 * float(np.median(H)), 1e-12))
-            info["iqr_floors"] = floors
             narrow = len(moving) >= int(st.model["min_group"]) and floors < float(lat.get("below_floors", 0))
             if units < float(lat["below_units"]) or narrow:
                 info["lattice"] = float(lat["width"])
@@ -89,7 +88,7 @@ class ScalarKind(KindBuilder):
         slots = slot_answers([p.spec for p in ps])
         carried: dict[str, list] = defaultdict(list)
         first: set = set()
-        for (sub, value), idx in sorted(slots.items(), key=lambda t: (str(t[0][0]), t[0][1])):
+        for (sub, value), idx in slots.items():
             answers = {ps[i].rid for i in idx}
             # a zero is carried by moving rows; the floor by any other row of its subgroup (the zeros too)
             others = [p.rid for p in ps if slot_subgroup(p.spec) == sub and p.rid not in answers
@@ -178,7 +177,7 @@ class ScalarKind(KindBuilder):
 
 def size_evidence(st, ps: list, eps: float) -> tuple[list, list, list] | None:
     """The sizes of the classes of a group's rows that the boxes of another task state: for each box
-    of the stage (or a peer row) of the rows' sources, its edge that a dimension question of that
+    of the stage of the rows' sources, its edge that a dimension question of that
     source asks (:func:`resti_lib.options.follow.box_edge_map`), in the rows' unit and printing, as
     (keys, base values, recordings) for :func:`hierarchical_offsets`. A class asked once or twice as a
     dimension (a sedan's length) is then placed by every sedan box of the other recordings, not by the
@@ -188,8 +187,7 @@ def size_evidence(st, ps: list, eps: float) -> tuple[list, list, list] | None:
     if not edge:
         return None
     keys, vals, grps = [], [], []
-    boxes = [p.spec for p in st.plans if p.spec.kind == "box"] + [sp for sp, _ in st.peers.values() if sp.kind == "box"]
-    for b in boxes:
+    for b in (st.by_id[rid].spec for rid in st.box_links):
         for (src, q), j in edge.items():
             if b.source != src or not isinstance(b.value, V.Box):
                 continue
