@@ -902,6 +902,34 @@ def test_a_population_narrower_than_the_floors_is_drawn_on_the_lattice():
     assert chisquare(ranks).pvalue > 0.01, ranks
 
 
+def test_a_trajectory_answer_keeps_the_rank_an_unconstrained_draw_gives_it():
+    """Drives whose mean speed is uniform on 0.1-22 m/s: in log space the answers crowd below a sharp
+    upper edge, with a long slow tail. Sets whose totals crowd closer than the 4% gap are rejected, and
+    the sets that survive place the answer by where they could spread, not by chance (old code: ranks
+    [52 51 92 94 71] and [57 46 82 75 100] on the seeds below, chi-square p 8e-5 and 5e-5). The answer
+    keeps the rank it has in the first set the row draws, before any constraint, so over rows whose
+    answers are calibrated each rank is as likely as the others."""
+    q = ("Which option best describes the camera's movement trajectory between t=0 s and t={:g} s? Distances "
+         "are path lengths along the trajectory and turns are net heading changes.")
+    for seeds in ((0, 1, 2), (3, 4, 5)):
+        ranks = np.zeros(5, int)
+        for seed in seeds:
+            rng = np.random.default_rng(seed)
+            rows = []
+            for i in range(120):
+                w = float(np.round(rng.uniform(8, 20), 1))
+                x = float(rng.uniform(0.1, 22)) * w
+                rows.append(_row(i, "Trajectory Description", "Waymo", q.format(w),
+                                 V.format_trajectory([("move", x)]), video=f"seg{i}_camera_1.mp4", t0=0.0, t1=w))
+            out, ev, _ = build_options(iface=IFACE, records=rows, seed=0)
+            for r in out:
+                v = sorted(V.parse(s).total_distance for s in r["Candidates"].values())
+                ranks[v.index(V.parse(r["Answer Detail"]).total_distance)] += 1
+        assert chisquare(ranks).pvalue > 0.01, (seeds, ranks)
+        for k in (0, 4):
+            assert binomtest(int(ranks[k]), int(ranks.sum()), 0.2, alternative="greater").pvalue > 0.01, (seeds, ranks)
+
+
 def test_a_dimension_learns_its_box_edge_and_its_class_from_other_recordings_boxes():
     """Waymo: the length asked of a sedan is the first edge of its grounding box in the same recording
     (four recordings agree, so ``box_edge_map`` takes edge 0). The class offset of a sedan's length

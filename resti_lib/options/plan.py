@@ -79,6 +79,7 @@ class RowPlan:
     link: object | None = None  # a related row of another task whose candidate set this row's follows (.follow.Link)
     box_links: list = field(default_factory=list)  # a box's dimension rows whose distractors its edges follow
     evidence: dict = field(default_factory=dict)
+    scratch: dict = field(default_factory=dict, repr=False)  # state of one build of the row, across its tries
 
     @property
     def rid(self) -> str:

@@ -567,9 +567,10 @@ class Stage:
         kb = builder_for(kind)
         s0 = float(self.model["s"]) * gm.info.get("s_factor", 1.0)
         tries = int(self.model["max_tries"]) // (4 if calibrating else 1)
-        if kind in ("scalar", "angle"):
+        if kind in ("scalar", "angle", "trajectory"):
             tries = max(2, tries // 16)  # each try is a batch of 32 sets
         rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else stream)
+        p.scratch = {"tries": tries}
         last = "no candidates drawn"
         # widening steps: a wider spread, then (relaxed) same-video premises no longer imposed
         # a last tier draws a scalar's distractors from its group's population without conditioning

@@ -16,6 +16,7 @@ from ..spec import (
     scalar_bounds,
 )
 from . import KindBuilder, register_kind
+from .oned import drawn_rank, first_valid_1d
 
 
 @register_kind("trajectory")
@@ -59,6 +60,7 @@ class TrajectoryKind(KindBuilder):
         n_cont = 5 - len(fixed)
         pars = {"split_sigma": 0.25, "turn_sigma_deg": 15.0}
         lo_b, hi_b = scalar_bounds(spec, st.params)
+        rel = st.params["separation"]["trajectory"]["min_rel_gap"]
         if p.answer_is_fixed:
             template = st.by_id[p.donor].spec.value if p.donor else V.Trajectory((("move", 1.0),), "")
             fmt = traj_formatter(template, pars, rng, centred=False)
@@ -76,23 +78,33 @@ class TrajectoryKind(KindBuilder):
             off = gm.info["offset"][p.rid]
             x = v.total_distance
             cell = (math.log(max(x - 0.05, 0.0) + 0.1) - off, math.log(x + 0.05 + 0.1) - off)
-            b = st.draw(gm, p.rid, [cell], s, rng, n=n_cont - 1)[:, 0]
-            totals = np.exp(b + off) - 0.1
-            strings = [fmt(float(t)) for t in totals]
-            structures = {V.parse(t).structure for t in strings}
-            if structures != {v.structure}:
-                raise Reject("a distractor lost the answer's structure")
-            alls = strings + fixed + [spec.detail]
-            values = [V.parse(t).total_distance for t in strings] + [x]
-        if any(t <= 0 for t in values) or any(t > hi_b for t in values):
-            raise Reject("a distractor distance is not physically possible")
-        if len(set(alls)) != 5:
-            raise Reject("two candidates print the same phrase")
-        rel = st.params["separation"]["trajectory"]["min_rel_gap"]
-        xs = sorted(values)
-        if any((b2 - a) < rel * b2 for a, b2 in zip(xs, xs[1:])):
-            raise Reject("two totals closer than the relative gap")
+            K = 32
+            totals = np.exp(st.draw(gm, p.rid, [cell], s, rng, n=n_cont - 1, batch=K)[:, :, 0] + off) - 0.1
+            allv = np.column_stack([totals, np.full(K, x)])
+            ok = (totals > 0).all(axis=1) & (totals <= hi_b).all(axis=1)
+            at_rank = drawn_rank(p, allv, n_cont - 1)
+            for i in first_valid_1d(allv, ok, np.zeros_like, rel=rel, at_rank=at_rank):
+                strings = [fmt(float(t)) for t in totals[i]]
+                if {V.parse(t).structure for t in strings} != {v.structure}:
+                    continue  # a distractor lost the answer's structure
+                alls = strings + fixed + [spec.detail]
+                values = [V.parse(t).total_distance for t in strings] + [x]
+                if _valid(alls, values, hi_b, rel):
+                    if st.last_draw is not None:
+                        st.last_draw.keep(i)
+                    return alls
+            raise Reject("no drawn set met the separation constraints" + ("" if at_rank[2] else " at the drawn rank"))
+        if not _valid(alls, values, hi_b, rel):
+            raise Reject("a distractor set broke the separation or plausibility constraints")
         return alls
+
+
+def _valid(alls: list[str], values: list[float], hi_b: float, rel: float) -> bool:
+    """Five distinct phrases whose totals are positive, physically possible and a relative gap apart."""
+    if any(t <= 0 or t > hi_b for t in values) or len(set(alls)) != 5:
+        return False
+    xs = sorted(values)
+    return all((b2 - a) >= rel * b2 for a, b2 in zip(xs, xs[1:]))
 
 
 def traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
