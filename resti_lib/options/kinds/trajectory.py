@@ -1,5 +1,6 @@
-"""Trajectory descriptions: total distances drawn as rates over the window, split and turned like
-the answer's structure; 'no significant movement' as a slot."""
+"""Trajectory descriptions: total distances drawn as rates over the window (in batches; the answer
+keeps the rank an unconstrained draw gives it), split and turned like the answer's structure; 'no
+significant movement' as a slot."""
 
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ from .oned import drawn_rank, first_valid_1d
 
 @register_kind("trajectory")
 class TrajectoryKind(KindBuilder):
-    """Trajectory descriptions: total distances drawn as rates over the window, split and turned
-    like the answer's structure; 'no significant movement' as a slot."""
+    """Trajectory descriptions: total distances drawn as rates over the window (in batches; the
+    answer keeps the rank an unconstrained draw gives it), split and turned like the answer's
+    structure; 'no significant movement' as a slot."""
 
     def fit(self, st, g: str, ps: list[RowPlan]) -> GroupModel:
         moving = [p for p in ps if p.spec.value.segments and p.spec.value.total_distance > 0]
