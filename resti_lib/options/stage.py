@@ -570,7 +570,6 @@ class Stage:
         if kind in ("scalar", "angle", "trajectory"):
             tries = max(2, tries // 16)  # each try is a batch of 32 sets
         rng = row_rng(self.seed, p.rid, "calibrate" if calibrating else stream)
-        p.scratch = {"tries": tries}
         last = "no candidates drawn"
         # widening steps: a wider spread, then (relaxed) same-video premises no longer imposed
         # a last tier draws a scalar's distractors from its group's population without conditioning
@@ -578,6 +577,9 @@ class Stage:
         # that every conditioned draw lands on them)
         tiers = ((s0, True, False), (min(0.8, 1.5 * s0), True, False), (min(0.8, 1.5 * s0), False, False),
                  (0.9, False, False), (0.9, False, True))
+        # what a builder may keep across the tries of this build (oned.drawn_rank: a target it can drop
+        # for the last tier)
+        p.scratch = {"tries_before_last_tier": tries * (len(tiers) - 1)}
         for tier, (s, strict, free) in enumerate(tiers):
             self.free_draw = free
             for attempt in range(tries):

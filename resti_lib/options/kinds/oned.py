@@ -60,7 +60,7 @@ def drawn_rank(p: RowPlan, allv: np.ndarray, column: int) -> tuple[int, int, int
     sc = p.scratch
     if "rank" not in sc:
         sc["rank"] = int(answer_ranks(allv[:1], column)[0])
-        sc["left"] = 4 * int(sc.get("tries", 1))
+        sc["left"] = int(sc.get("tries_before_last_tier", 1))
         p.evidence["drawn_rank"] = sc["rank"]
         p.evidence.pop("drawn_rank_missed", None)
     sc["left"] -= 1

@@ -87,10 +87,11 @@ class TrajectoryKind(KindBuilder):
             at_rank = drawn_rank(p, allv, n_cont - 1)
             for i in first_valid_1d(allv, ok, np.zeros_like, rel=rel, at_rank=at_rank):
                 strings = [fmt(float(t)) for t in totals[i]]
-                if {V.parse(t).structure for t in strings} != {v.structure}:
+                parsed = [V.parse(t) for t in strings]
+                if {t.structure for t in parsed} != {v.structure}:
                     continue  # a distractor lost the answer's structure
                 alls = strings + fixed + [spec.detail]
-                values = [V.parse(t).total_distance for t in strings] + [x]
+                values = [t.total_distance for t in parsed] + [x]
                 if _valid(alls, values, hi_b, rel):
                     if st.last_draw is not None:
                         st.last_draw.keep(i)
