@@ -33,6 +33,9 @@ _DEFECTS = [
            "the asked interval has zero length"),
     Defect("premise_equals_answer", "question", "structural",
            "the answer is printed in the premise (target time equals premise time)"),
+    Defect("premise_reveals_answer", "question", "structural",
+           "the premise pose printed in the question is the answer of another question of the same recording "
+           "(a converse pair: the pose at t1 given t0, and at t0 given t1)"),
     Defect("grouped_referent", "question", "referent",
            "the description names a group of objects, not one instance"),
     Defect("multiple_instances", "question", "referent",
@@ -95,6 +98,8 @@ REASONS: dict[str, str] = {
     "not_visible_at_frame": "the referent is outside the camera frustum at the asked frame",
     "zero_length_interval": "the interval has zero length",
     "premise_equals_target": "the target pose is the premise pose",
+    "no_unrevealing_premise": "the premise is another question's answer and no time of the recording can replace it "
+                              "(every valid time is a target of a question of the recording)",
     "ambiguous_subject": "two possible motion subjects and the source does not decide",
     "no_dominant_relation": "no spatial relation dominates by the margin",
     "undefined_dimension": "the asked dimension has no convention for this object",

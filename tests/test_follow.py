@@ -126,3 +126,66 @@ def test_a_displacement_follows_the_path_length_it_cannot_exceed():
     assert find_link(spec("f", "Displacement & Path Length", "displacement", "6.00m", t0=1.0, t1=5.0), [path],
                      TOL) is None
     assert find_link(spec("f", "Displacement & Path Length", "displacement", "6.00m", seq="seg2"), [path], TOL) is None
+
+
+_MOVE = r"move forward ([0-9.]+)m"
+_TURN = r"turn (left|right) ([0-9]+)°"
+
+
+def _turns(phrase: str) -> tuple:
+    import re
+
+    return tuple(int(n) * (1 if side == "left" else -1) for side, n in re.findall(_TURN, phrase))
+
+
+def _total(phrase: str) -> float:
+    import re
+
+    return sum(float(x) for x in re.findall(_MOVE, phrase))
+
+
+def test_the_camera_videos_of_one_drive_get_translates_of_one_trajectory_set(main_run):
+    """The camera videos of one Waymo segment describe one drive, each from its mount: path lengths a
+    few centimetres apart, the same turns. Their candidate sets are translates of one set (each
+    candidate moved by the difference of the answers), so the turns every set shares with the
+    segment's heading-change rows single out nothing. Read by hand from the release with regexes."""
+    import itertools
+    import json
+    from collections import defaultdict
+
+    rows = [json.loads(x) for x in (main_run.out / "release" / "resti.jsonl").read_text().splitlines() if x.strip()]
+    drives = defaultdict(list)
+    for r in rows:
+        if r["Task"] == "Trajectory Description" and r["Source"] == "Waymo" and _turns(r["Answer Detail"]):
+            drives[(r["Video"].split("_camera")[0], r["time_start"], round(r["time_end"], 3))].append(r)
+    pairs = moved = 0
+    for group in drives.values():
+        for a, b in itertools.combinations(group, 2):
+            d = _total(b["Answer Detail"]) - _total(a["Answer Detail"])
+            if _turns(a["Answer Detail"]) != _turns(b["Answer Detail"]) or abs(d) >= 1.0:
+                continue
+            pairs += 1
+            moved += d != 0
+            assert sorted(map(_turns, a["Candidates"].values())) == sorted(map(_turns, b["Candidates"].values()))
+            n_moves = a["Answer Detail"].count("move forward")
+            ta = np.sort([_total(c) for c in a["Candidates"].values()])
+            tb = np.sort([_total(c) for c in b["Candidates"].values()])
+            assert np.allclose(ta + d, tb, atol=0.15 * n_moves + 1e-9), (a["Video"], b["Video"], ta, tb)
+    assert pairs >= 3 and moved >= 1, (pairs, moved)
+    # a heading change over the drive's window: each candidate is the turn sum of one trajectory
+    # candidate of each camera's set (within the follow's residual), so the relation ties all five
+    checked = 0
+    for r in rows:
+        if r["Task"] != "Ego-Centric Orientation" or r["Source"] != "Waymo":
+            continue
+        drive = drives.get((r["Video"].split("_camera")[0], r["time_start"], round(r["time_end"], 3)))
+        if not drive:
+            continue
+        angles = [float(c.rstrip("°")) for c in r["Candidates"].values()]
+        for t in drive:
+            sums = [sum(_turns(c)) for c in t["Candidates"].values()]
+            nearest = [min(sums, key=lambda x: abs(x - a)) for a in angles]
+            assert sorted(nearest) == sorted(sums) and all(abs(a - n) < 1.0 for a, n in zip(angles, nearest)), \
+                (r["Video"], angles, t["Video"], sums)
+            checked += 1
+    assert checked >= 6, checked

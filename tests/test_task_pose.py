@@ -206,3 +206,95 @@ def test_omni_pose_relative_to_the_premise_camera():
     o3 = audit_row(TASK, same, _Ctx(_Rope(tr)), {})
     assert o3.verdict == "excluded" and o3.reasons == ["premise_equals_target"]
     assert o3.defects == ["premise_equals_answer"] and o3.evidence["same_time"]
+
+
+# ------------------------------------------------------------ premises that are another row's answer
+
+
+class _Scene:
+    meta_path = "scene0000_00.txt"
+
+    def __init__(self, track):
+        self.track = track
+
+    def camera_track(self):
+        return self.track
+
+
+class _ScanCtx:
+    video_map = None
+    scannet_root = "stub"
+
+    def __init__(self, scene):
+        self._scene = scene
+
+    def locate(self, video):
+        from resti_lib.sources.mapping import VideoSource
+
+        return VideoSource("ScanNet", "scene0000_00", None, "stub")
+
+    def scannet(self, seq):
+        return self._scene
+
+
+def _scan_rows(tr, pairs):
+    """Legacy ScanNet rows asking the pose at t1 given the printed pose at t0 (whole seconds)."""
+    out = []
+    for i, (t0, t1) in enumerate(pairs):
+        q = (f"Given the camera pose at t={t0} s in the ScanNet raw scan coordinate frame: {V.format_pose(tr.T[10 * t0])}, "
+             f"what is the camera pose in the same coordinate frame at t={t1} s?")
+        out.append({"row": i, "Legacy Row Key": f"ScanNet|{TASK}|scene0000_00.mp4|{i}|uid={i}", "Source": "ScanNet",
+                    "Task": TASK, "Video": "scene0000_00.mp4", "ID": i, "Question": q, "Prompt": "",
+                    "time_start": float(t1), "time_end": float(t1), "Answer Detail": V.format_pose(tr.T[10 * t1]),
+                    "Candidates": {}})
+    return out
+
+
+def test_a_premise_that_is_another_rows_answer_moves_to_the_first_second_no_row_asks():
+    import pandas as pd
+
+    from resti_lib.tasks import task_for
+    from resti_lib.tasks.run import audit_rows
+
+    tr = _track(n=101)  # 0 .. 10 s; the pose at t is [R_z(3t deg) | (t, 2, 1)]
+    # a converse pair (2 -> 5, 5 -> 2) and a row asking t=0 from an unasked premise (7 -> 0)
+    rows = _scan_rows(tr, [(2, 5), (5, 2), (7, 0)])
+    out = audit_rows(task_for(TASK), pd.DataFrame(rows), _ScanCtx(_Scene(tr)), {})
+    moved, kept = out[:2], out[2]
+    # by hand: seconds 0, 2 and 5 are asked, so the first free one is 1 s, where the pose is [R_z(3 deg) | (1, 2, 1)]
+    want = V.format_pose(make_T(yaw_matrix(np.radians(3.0)), np.array([1.0, 2.0, 1.0])))
+    for o, other in zip(moved, (1, 0)):
+        assert o.verdict == "retained" and o.defects == ["premise_reveals_answer"]
+        assert o.evidence["premise_moved"] == {"legacy_premise_time": [2.0, 5.0][o.row], "premise_time": 1.0,
+                                               "answer_of_rows": [other]}
+        assert o.question.startswith(f"Given the camera pose at t=1 s in the ScanNet raw scan coordinate frame: {want},")
+        assert o.contract["params"]["premise_time"] == 1.0
+    assert kept.verdict == "retained" and not kept.defects and "t=7 s" in kept.question
+    # every whole second asked by some row: nothing can replace the premise, the rows are excluded
+    tr4 = _track(n=31)  # 0 .. 3 s
+    out4 = audit_rows(task_for(TASK), pd.DataFrame(_scan_rows(tr4, [(1, 0), (0, 1), (3, 2), (2, 3)])),
+                      _ScanCtx(_Scene(tr4)), {})
+    assert [o.verdict for o in out4] == ["excluded"] * 4
+    assert all(o.reasons == ["no_unrevealing_premise"] and o.defects == ["premise_reveals_answer"] for o in out4)
+    assert [o.evidence["answer_of_rows"] for o in out4] == [[1], [0], [3], [2]]
+
+
+def test_no_released_premise_prints_an_answer_of_its_recording(pose_run):
+    """The mini-world asks Waymo poses in converse pairs, as the legacy benchmark does; in the release
+    no premise is at a time another row of the recording asks, nor prints as one of its answers."""
+    import re
+
+    man = pose_run.by_row
+    acc = {r["Legacy Row Key"]: r for r in pose_run.run.result.accepted}
+    released = [o for o in pose_run.run.outcomes if o.verdict != "excluded" and o.source != "Omni6DPose"]
+    assert sum("premise_reveals_answer" in man[o.row]["defects"] for o in released) >= 4
+    for o in released:
+        t0 = float(re.search(r"at t=([0-9.]+) s", acc[o.key]["Question"]).group(1))
+        seq = [p for p in released if man[p.row]["sequence"] == man[o.row]["sequence"]]
+        assert all(abs(man[p.row]["contract"]["times"][0] - t0) > 1e-6 for p in seq), o.row
+        premise = acc[o.key]["Question"].split(": ", 1)[1].split(", what is", 1)[0]
+        assert all(acc[p.key]["Answer Detail"] != premise for p in seq if p.video == o.video), o.row
+        if "premise_reveals_answer" in man[o.row]["defects"]:
+            # moved to the first whole second that no row of the sequence asks
+            asked = {man[p.row]["contract"]["times"][0] for p in seq}
+            assert t0 == min(t for t in range(0, 30) if t not in asked), o.row

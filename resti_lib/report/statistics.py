@@ -25,13 +25,9 @@ from ..options.power import (  # noqa: F401
 from ..tasks import interface, names
 
 VERDICT_ORDER = ("retained", "corrected", "re-contracted", "excluded")
-QUESTION_DEFECTS = ("pose_time_omitted", "ambiguous_subject", "unnamed_frame", "unit_tag_missing",
-                    "statistic_unnamed", "zero_length_interval", "premise_equals_answer", "grouped_referent",
-                    "multiple_instances", "no_source_instance", "not_visible")
-ANSWER_DEFECTS = ("key_detail_mismatch", "duplicate_options_exact", "duplicate_options_numeric",
-                  "pose_identical_rotations", "orientation_symmetric_grid", "orientation_smallest_correct")
-SOURCE_DEFECTS = ("grounding_alignment_omitted", "orientation_xz_plane", "waymo_pose_wrong_timestamp",
-                  "speed_is_displacement_over_time", "trajectory_10m_grid", "value_mismatch")
+#: the defect tables' columns: the registry's codes of each layer, in its order (one list, in defects.py)
+QUESTION_DEFECTS, ANSWER_DEFECTS, SOURCE_DEFECTS = (tuple(c for c, d in DEFECTS.items() if d.layer == layer)
+                                                    for layer in ("question", "answer", "source"))
 
 
 def _task_index(tasks) -> list[str]:

@@ -184,6 +184,7 @@ class Draft:
     verdict: str
     reasons: list[str] = field(default_factory=list)
     evidence: dict = field(default_factory=dict)
+    premise: str | None = None  # Pose: the premise pose as the question prints it
 
 
 @dataclass
@@ -630,8 +631,14 @@ class Builder:
             frame = "scannet_raw_opencv"
             t_start, t_end = float(t0), float(t1)
         elif slot.source == "Waymo":
-            t0 = int(rng.integers(0, 19))
-            t1 = t0 if slot.variant == "premise" else int(_choose(rng, [x for x in range(20) if x != t0]))
+            # the legacy benchmark asks its Waymo poses in converse pairs (the pose at b given the one at
+            # a, then at a given b): occurrences 2k and 2k+1 of a video share two times, swapped
+            pair = rng_for(self.seed, f"pose-pair|{slot.video}|{slot.occurrence // 2}")
+            a = int(pair.integers(0, 19))
+            b = int(_choose(pair, [x for x in range(20) if x != a]))
+            t0, t1 = (a, b) if slot.occurrence % 2 == 0 else (b, a)
+            if slot.variant == "premise":
+                t1 = t0
             k0, k1 = s.frame_of(t0), s.frame_of(t1)
             P0, truth_T = s.cam_pose_cv(k0, slot.camera), s.cam_pose_cv(k1, slot.camera)
             legacy_T = truth_T
@@ -700,6 +707,7 @@ class Builder:
             defects=defects,
             verdict=verdict,
             reasons=reasons,
+            premise=None if slot.source == "Omni6DPose" else format_pose(P0, compact=compact),
         )
 
     # ---------------------------------------------------------------------- motion helpers
@@ -1504,6 +1512,7 @@ def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], 
     assign_variants(slots, seed, builder.can_host)
     mismatch, dup_exact, dup_numeric = _answer_flags(slots, seed)
     rows, manifest = [], []
+    premised: list[tuple[int, Slot, Draft]] = []
     for i, sl in enumerate(slots):
         d = builder.build(sl)
         rng = rng_for(seed, f"answer|{sl.key}")
@@ -1583,7 +1592,27 @@ def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], 
             rec["evidence"] = _r(d.evidence)
         rec["legacy_options"] = {"construction": construction, "answer_rank": _answer_rank(texts, int(ans_pos), unit)}
         manifest.append(rec)
+        if d.premise is not None and not d.reasons:
+            premised.append((i, sl, d))
+    for i in _premise_reveals(premised):
+        manifest[i]["defects"] = sorted({*manifest[i]["defects"], "premise_reveals_answer"},
+                                        key=lambda c: _DEFECT_ORDER[c])
     return rows, manifest
+
+
+def _premise_reveals(premised: list[tuple[int, Slot, Draft]]) -> list[int]:
+    """Rows (of released Pose rows with a printed premise) whose premise is printed at a time another
+    of them asks as its target in the same sequence (a converse pair; another camera of a Waymo
+    segment counts), or prints as the answer of another of them in the same video."""
+    out = []
+    for i, sl, d in premised:
+        t0 = d.contract["premise_time"]
+        for j, sj, dj in premised:
+            if j != i and sj.sequence == sl.sequence and (
+                    dj.contract["times"][0] == t0 or (sj.video == sl.video and dj.true_answer == d.premise)):
+                out.append(i)
+                break
+    return out
 
 
 __all__ = ["TASK_ORDER", "TASK_SOURCES", "Draft", "Slot", "World", "assign_variants", "build_rows"]

@@ -257,6 +257,11 @@ class Task:
     def reconstruct(self, case: Case) -> None:
         raise NotImplementedError
 
+    def contract_group(self, cases: list[Case]) -> None:
+        """Contract repairs that need the task's other rows, after every row is reconstructed and before
+        any is diagnosed (a Pose premise that is another row's answer). A case it excludes gets its
+        outcome excluded (:meth:`Outcome.exclude`). Default: none."""
+
     def diagnose(self, case: Case) -> None:
         """Default: the scalar ``case.value`` (SI) compared with the legacy value under ``case.rule``."""
         rule = Rule(abs_tol=float(case.rule.get("abs_tol", 0.0)), rel_tol=float(case.rule.get("rel_tol", 0.0))) \

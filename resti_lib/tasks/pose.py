@@ -20,6 +20,11 @@ Diagnosis
   source premise at the resolved time.
 - ``premise_equals_target``: target time equal to the premise time, or target and premise poses
   that print identically -> excluded (defect ``premise_equals_answer``).
+- ``premise_reveals_answer``: the printed premise is another row's answer (the legacy benchmark asks
+  Waymo poses in converse pairs: the pose at t1 given t0, and at t0 given t1; no option design can
+  hide that). The premise moves to the earliest whole second that no row of the recording asks
+  (:meth:`Pose.contract_group`), the legacy premise time kept in the evidence; without such a
+  second the row is excluded (``no_unrevealing_premise``).
 - Timestamp search (:func:`timestamp_search`): for each legacy matrix, the source sample whose
   pose reproduces it best (largest absolute entry difference, ``residual``). A Waymo matrix that
   the asked sample does not reproduce but another sample does is ``waymo_pose_wrong_timestamp``;
@@ -304,12 +309,40 @@ class Pose(Task):
         o.evidence["premise_to_target"] = {"displacement_m": disp, "rotation_deg": rot}
         o.prompt = ""
         o.time_start, o.time_end = min(t0, t1), max(t0, t1)
-        case.state.update(track=track, T0=T0, t0=t0, t1=t1, compact=compact)
+        case.state.update(track=track, T0=T0, t0=t0, t1=t1, compact=compact, tol_s=float(e0["tol_s"]),
+                          printed=src != "Omni6DPose")
         case.value = T1
         case.observables.update(subject="the camera", subject_class="camera", premise=T0, premise_time=t0,
                                 target_time=t1, up=list(up))
         case.answer = AnswerSpec(kind="pose", value=T1, decimals=dec,
                                  options={"compact": compact})
+
+    def contract_group(self, cases: list[Case]) -> None:
+        """A premise that reveals another row's answer moves (:func:`premise_reveals`,
+        :func:`unrevealing_premise_time`): defect ``premise_reveals_answer``, the legacy premise time
+        kept in the evidence; a row whose recording offers no such time is excluded
+        (``no_unrevealing_premise``)."""
+        dec = int(cases[0].params["decimals"]) if cases else 2
+        moves = premise_reveals(cases, dec)
+        for case, revealed in moves:
+            s, o = case.state, case.outcome
+            o.defects.append("premise_reveals_answer")
+            t_new = unrevealing_premise_time(case, cases, dec)
+            legacy_t0 = s["t0"]
+            if t_new is None:
+                o.exclude("no_unrevealing_premise", premise_time=legacy_t0, answer_of_rows=revealed)
+                continue
+            m0 = case.measure("pose", {"kind": "camera"}, [t_new])
+            T0, T1 = np.asarray(m0.value, float), case.value
+            s.update(t0=t_new, T0=T0)
+            case.contract.params["premise_time"] = t_new
+            o.frames["premise"] = m0.evidence
+            o.evidence["premise_moved"] = {"legacy_premise_time": legacy_t0, "premise_time": t_new,
+                                           "answer_of_rows": revealed}
+            o.evidence["premise_to_target"] = {"displacement_m": float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])),
+                                               "rotation_deg": rotation_angle_deg(T0[:3, :3], T1[:3, :3])}
+            o.time_start, o.time_end = min(t_new, s["t1"]), max(t_new, s["t1"])
+            case.observables.update(premise=T0, premise_time=t_new)
 
     def diagnose(self, case: Case) -> None:
         p, legacy, T1 = case.params, case.legacy, case.value
@@ -334,6 +367,54 @@ class Pose(Task):
         s = case.state
         return question_text(case.source, s["t0"], s["t1"],
                              V.format_pose(s["T0"], int(case.params["decimals"]), compact=s["compact"]))
+
+
+# ------------------------------------------------------------------ premises that reveal answers
+
+
+def _printed(case: Case, T: np.ndarray, dec: int) -> str:
+    return V.format_pose(T, dec, compact=case.state["compact"])
+
+
+def premise_reveals(cases: list[Case], decimals: int) -> list[tuple[Case, list[int]]]:
+    """The rows whose printed premise reveals another row's answer, with those rows: the premise time
+    is the target time of another row of the same sequence (a converse pair; another camera of a Waymo
+    segment is the answer up to the camera's mount), or the premise prints as the answer of another
+    row of the same video (a camera at rest). Every pair is counted; a row may reveal several."""
+    printed = [c for c in cases if c.state.get("printed")]
+    out = []
+    for c in printed:
+        hit = [o.outcome.row for o in printed if o is not c and o.contract.sequence == c.contract.sequence and (
+            abs(o.state["t1"] - c.state["t0"]) <= c.state["tol_s"]
+            or (o.outcome.video == c.outcome.video
+                and _printed(o, o.value, decimals) == _printed(c, c.state["T0"], decimals)))]
+        if hit:
+            out.append((c, sorted(hit)))
+    return out
+
+
+def unrevealing_premise_time(case: Case, cases: list[Case], decimals: int) -> float | None:
+    """The earliest whole second of the row's recording that can be its premise without revealing an
+    answer: no row of the sequence asks it as a target, the camera's pose there is valid and prints
+    unlike every answer of the video (its own included). None when no second qualifies. One rule for
+    every moved row, so the moved rows of a video share one premise, as ScanNet's share the initial
+    pose."""
+    track: PoseTrack = case.state["track"]
+    tol = case.state["tol_s"]
+    seq = [o for o in cases if o.state.get("printed") and o.contract.sequence == case.contract.sequence]
+    targets = np.array([o.state["t1"] for o in seq], float)
+    answers = {_printed(o, o.value, decimals) for o in seq if o.outcome.video == case.outcome.video}
+    end = float(track.times[track.valid].max()) if track.valid.any() else -1.0
+    for t in np.arange(0.0, np.floor(end) + 1.0):
+        if np.any(np.abs(targets - t) <= tol):
+            continue
+        try:
+            T = np.asarray(case.measure("pose", {"kind": "camera"}, [float(t)]).value, float)
+        except ContractError:
+            continue
+        if _printed(case, T, decimals) not in answers:
+            return float(t)
+    return None
 
 
 # ---------------------------------------------------------------------------------- reporting
@@ -401,8 +482,10 @@ __all__ = [
     "diagnosis_table",
     "plot_translation_change",
     "pose_at_time",
+    "premise_reveals",
     "question_text",
     "resolve_premise",
     "timestamp_search",
+    "unrevealing_premise_time",
     "wrong_timestamp_summary",
 ]

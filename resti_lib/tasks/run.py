@@ -10,7 +10,8 @@ duplicate rows and rows asking a time past the end of the video (:func:`prescree
 2. parses the legacy Answer Detail once (:func:`resti_lib.adjudicate.read_legacy`);
 3. reconstructs the value (``Task.reconstruct``; an :class:`~resti_lib.tasks.base.Exclude` ends the
    row excluded with its reasons and evidence, and so does damaged or gapped source data,
-   :class:`~resti_lib.errors.SourceError`: ``source_damaged`` / ``source_gap`` with file, row and field);
+   :class:`~resti_lib.errors.SourceError`: ``source_damaged`` / ``source_gap`` with file, row and field),
+   then repairs what needs the task's other rows (``Task.contract_group``);
 4. diagnoses the legacy value (``Task.diagnose_all``) and adjudicates the verdict;
 5. rewrites the question (``Task.rewrite``), completes the contract (σ and D of the repaired
    row, what the legacy row stated kept under ``legacy``) and the option spec;
@@ -198,6 +199,11 @@ def audit_rows(task: Task, rows: pd.DataFrame, ctx: SourceContext, params: dict)
                       source_row=e.row, source_field=e.field, problem=e.message)
             continue
         cases.append(case)
+    task.contract_group(cases)
+    for case in cases:
+        if case.outcome.verdict == "excluded":
+            case.outcome.contract = case.contract.to_dict()
+    cases = [c for c in cases if c.outcome.verdict != "excluded"]
     task.diagnose_all(cases)
     for case in cases:
         o, d = case.outcome, case.diagnosis

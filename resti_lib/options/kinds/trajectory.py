@@ -11,6 +11,7 @@ import numpy as np
 from ... import values as V
 from ...errors import OptionError
 from ...rng import row_rng
+from ..follow import turn_sum
 from ..plan import GroupModel, Reject, RowPlan, log_window, slot_rows
 from ..population import FieldModel
 from ..spec import (
@@ -63,6 +64,7 @@ class TrajectoryKind(KindBuilder):
         pars = {"split_sigma": 0.25, "turn_sigma_deg": 15.0}
         lo_b, hi_b = scalar_bounds(spec, st.params)
         rel = st.params["separation"]["trajectory"]["min_rel_gap"]
+        turn_gap = float(st.params["separation"]["angle"]["min_sep_deg"])
         if p.answer_is_fixed:
             template = st.by_id[p.donor].spec.value if p.donor else V.Trajectory((("move", 1.0),), "")
             fmt = traj_formatter(template, pars, rng, centred=False)
@@ -90,6 +92,8 @@ class TrajectoryKind(KindBuilder):
                 parsed = [V.parse(t) for t in strings]
                 if {t.structure for t in parsed} != {v.structure}:
                     continue  # a distractor lost the answer's structure
+                if not _turns_apart([*parsed, v], turn_gap):
+                    continue  # two candidates turn alike: a heading change asked beside could not match both
                 alls = strings + fixed + [spec.detail]
                 values = [t.total_distance for t in parsed] + [x]
                 if _valid(alls, values, hi_b, rel):
@@ -100,6 +104,50 @@ class TrajectoryKind(KindBuilder):
         if not _valid(alls, values, hi_b, rel):
             raise Reject("a distractor set broke the separation or plausibility constraints")
         return alls
+
+
+    def near(self, st, a, b) -> bool:
+        """Two moving answers of one structure, turns that print alike and totals closer than the
+        separation floor: the camera videos of one Waymo segment describe one drive, each from its
+        mount (path lengths a few centimetres apart), and their heading changes are one."""
+        va, vb = a.spec.value, b.spec.value
+        if not va.segments or not vb.segments or va.structure != vb.structure:
+            return False
+        if any(k == "turn" and round(x) != round(y) for (k, x), (_, y) in zip(va.segments, vb.segments)):
+            return False
+        x, y = va.total_distance, vb.total_distance
+        rel = st.params["separation"]["trajectory"]["min_rel_gap"]
+        return x > 0 and y > 0 and abs(x - y) < rel * max(x, y)
+
+    def translate(self, st, base, p, strings):
+        """Each of ``base``'s distractors moved segment by segment by the difference of the two
+        answers (the slot phrase kept): the turns a sibling heading change or another camera's
+        description names then match every candidate, or none."""
+        bv = base.spec.value
+        d = [x - y for (_, x), (_, y) in zip(p.spec.value.segments, bv.segments)]
+        out = []
+        for text in (x for x in strings if x != base.spec.detail):
+            t = V.parse(text)
+            if not t.segments:
+                out.append(text)
+                continue
+            if t.structure != bv.structure:
+                return None
+            segs = [(k, x + dd) for (k, x), dd in zip(t.segments, d)]
+            if any(k == "move" and x <= 0 for k, x in segs):
+                return None
+            out.append(V.format_trajectory(segs))
+        out.append(p.spec.detail)
+        return out if len(set(out)) == 5 else None
+
+
+def _turns_apart(candidates: list[V.Trajectory], gap: float) -> bool:
+    """Candidates that turn have printed turn sums ``gap`` degrees apart (the heading-change
+    separation): the heading-change rows of the recording follow the set (turn sum = heading change),
+    and two candidates turning alike would leave one of their images unmatched, or matched by the
+    answer alone."""
+    sums = sorted(round(turn_sum(t)) for t in candidates if any(k == "turn" for k, _ in t.segments))
+    return all(b - a >= gap for a, b in zip(sums, sums[1:]))
 
 
 def _valid(alls: list[str], values: list[float], hi_b: float, rel: float) -> bool:
