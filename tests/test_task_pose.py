@@ -166,19 +166,26 @@ class _Rope:
 
 
 class _Ctx:
-    video_map = None
-    omni6d_root = "stub"
+    """Stubbed sources: one ROPE scene (``000001``) or one ScanNet scene (``scene0000_00``)."""
 
-    def __init__(self, rope):
-        self._rope = rope
+    video_map = None
+    omni6d_root = scannet_root = "stub"
+
+    def __init__(self, rope=None, scene=None):
+        self._rope, self._scene = rope, scene
 
     def locate(self, video):
         from resti_lib.sources.mapping import VideoSource
 
+        if self._scene is not None:
+            return VideoSource("ScanNet", "scene0000_00", None, "stub")
         return VideoSource("Omni6DPose", "000001", None, "stub")
 
     def rope(self, seq):
         return self._rope
+
+    def scannet(self, seq):
+        return self._scene
 
 
 def _row(question, detail, t0, t1):
@@ -221,22 +228,6 @@ class _Scene:
         return self.track
 
 
-class _ScanCtx:
-    video_map = None
-    scannet_root = "stub"
-
-    def __init__(self, scene):
-        self._scene = scene
-
-    def locate(self, video):
-        from resti_lib.sources.mapping import VideoSource
-
-        return VideoSource("ScanNet", "scene0000_00", None, "stub")
-
-    def scannet(self, seq):
-        return self._scene
-
-
 def _scan_rows(tr, pairs):
     """Legacy ScanNet rows asking the pose at t1 given the printed pose at t0 (whole seconds)."""
     out = []
@@ -259,7 +250,7 @@ def test_a_premise_that_is_another_rows_answer_moves_to_the_first_second_no_row_
     tr = _track(n=101)  # 0 .. 10 s; the pose at t is [R_z(3t deg) | (t, 2, 1)]
     # a converse pair (2 -> 5, 5 -> 2) and a row asking t=0 from an unasked premise (7 -> 0)
     rows = _scan_rows(tr, [(2, 5), (5, 2), (7, 0)])
-    out = audit_rows(task_for(TASK), pd.DataFrame(rows), _ScanCtx(_Scene(tr)), {})
+    out = audit_rows(task_for(TASK), pd.DataFrame(rows), _Ctx(scene=_Scene(tr)), {})
     moved, kept = out[:2], out[2]
     # by hand: seconds 0, 2 and 5 are asked, so the first free one is 1 s, where the pose is [R_z(3 deg) | (1, 2, 1)]
     want = V.format_pose(make_T(yaw_matrix(np.radians(3.0)), np.array([1.0, 2.0, 1.0])))
@@ -273,7 +264,7 @@ def test_a_premise_that_is_another_rows_answer_moves_to_the_first_second_no_row_
     # every whole second asked by some row: nothing can replace the premise, the rows are excluded
     tr4 = _track(n=31)  # 0 .. 3 s
     out4 = audit_rows(task_for(TASK), pd.DataFrame(_scan_rows(tr4, [(1, 0), (0, 1), (3, 2), (2, 3)])),
-                      _ScanCtx(_Scene(tr4)), {})
+                      _Ctx(scene=_Scene(tr4)), {})
     assert [o.verdict for o in out4] == ["excluded"] * 4
     assert all(o.reasons == ["no_unrevealing_premise"] and o.defects == ["premise_reveals_answer"] for o in out4)
     assert [o.evidence["answer_of_rows"] for o in out4] == [[1], [0], [3], [2]]
