@@ -1022,3 +1022,41 @@ def test_a_parked_cars_floor_speed_is_a_slot_beside_the_zero():
         offered = [r for r in out if slot in r["Candidates"].values()]
         answered = [r for r in offered if r["Candidates"][r["Answer"]] == slot]
         assert len(answered) == 15 and len(offered) == 75, (slot, len(answered), len(offered))
+
+
+def test_a_slot_answering_over_a_fifth_of_one_kind_of_question_is_structural_there():
+    """Parked cars answer the instant speed of an object with 0.00 m/s, moving cars' average speeds
+    over a window almost never do. The question shows which kind it is, so a zero that answers 4 of
+    the 10 instant questions is the answer in 4 of at most 10 rows that print it, whatever the
+    options, though it answers only 4 of the task's 60 speed rows (old code measured the share over
+    the 60: no leak named, no zero dropped). The structural table names it for that kind of question;
+    the evaluation subset keeps (10 - 4) // 4 = 1 of the 4 zeros, so the kept zero answers 1 of the
+    7 kept rows that can carry it; the 50 window rows keep every row."""
+    rng = np.random.default_rng(5)
+    rows, zeros = [], set()
+    for i in range(60):
+        if i < 10:  # an object at an instant: four parked
+            x = 0.0 if i < 4 else float(np.exp(rng.normal(math.log(6.0), 0.5)))
+            q = f"What is the speed of the white truck number {i} at t=3 s? (unit: m/s)"
+            t0 = t1 = 3.0
+            if i < 4:
+                zeros.add(f"r{i}")
+        else:  # the camera over a window
+            x = float(np.exp(rng.normal(math.log(9.0), 0.4)))
+            t0, t1 = 2.0, 2.0 + float(np.round(rng.uniform(1.0, 9.0), 1))
+            q = (f"What is the magnitude of the camera's average velocity between t={t0:g} s and t={t1:g} s, computed "
+                 f"as straight-line endpoint displacement divided by elapsed time? (unit: m/s)")
+        rows.append(_row(i, "Speed & Acceleration", "Waymo", q, V.format_scalar(x, "m/s"),
+                         video=f"seg{i}_camera_1.mp4", t0=t0, t1=t1))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+    leaks = structural_leaks(out, IFACE)
+    slot = leaks[leaks["leak"] == "zero_slot"]
+    assert len(slot) == 1 and "object, at an instant" in slot["detail"].iloc[0], slot.to_dict("records")
+    assert slot["accuracy_on_affected"].iloc[0] == pytest.approx(4 / 10)
+    sub = evaluation_subset(out, IFACE)
+    dropped = {d["id"] for d in sub["dropped"] if d["reason"] == "zero_slot"}
+    assert len(dropped) == 3 and dropped <= zeros
+    kept = {r["ReSTI ID"]: r for r in out if r["ReSTI ID"] in set(sub["ids"])}
+    instant = [r for rid, r in kept.items() if int(rid[1:]) < 10]
+    assert len(instant) == 7 and sum(r["Candidates"][r["Answer"]] == "0.00m/s" for r in instant) == 1
+    assert all(f"r{i}" in kept for i in range(10, 60))

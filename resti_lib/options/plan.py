@@ -151,6 +151,12 @@ def slot_subgroup(spec: OptionSpec) -> tuple:
     return (o.quantity, o.is_camera, o.window_s is None)
 
 
+def slot_subgroup_text(sub: tuple) -> str:
+    """A :func:`slot_subgroup` in words (``"object, at an instant"``)."""
+    _, camera, instant = sub
+    return f"{'camera' if camera else 'object'}, {'at an instant' if instant else 'over a window'}"
+
+
 def slot_answers(specs: list) -> dict[tuple, list[int]]:
     """Answers printed where no candidate can print below them, per (:func:`slot_subgroup`, value)
     (indices into ``specs``): exact zeros (stationary objects) and answers at the smallest printable

@@ -17,8 +17,11 @@ against it:
   candidate carries it;
 * ``same_video_reveal`` — a Pose answer printed verbatim as the premise of another question of the
   same video; hidden only where the video has four other premises to use as distractors;
-* ``zero_slot`` — exact zeros (stationary objects) are one printed string: when more than a fifth of
-  a group is zero, that string is the answer in more than a fifth of the rows where it appears;
+* ``zero_slot`` — exact zeros (stationary objects) and answers at the printing floor are one printed
+  string each, which a row carries at most once: when more than a fifth of the rows of one kind of
+  question (:func:`plan.slot_subgroup`: the quantity, of the camera or of an object, at an instant or
+  over a window, all of which the question shows) answer it, that string is the answer in more than a
+  fifth of the rows where it appears, whatever the options;
 * ``repeated_answer`` — rows of one source sequence that ask the same thing and share the answer
   (the camera videos of one Waymo segment asking the ego heading change): options can make them
   share one candidate set, but a reader of one row's answer key knows the others';
@@ -50,7 +53,7 @@ from ..errors import InputError
 from ..rng import stable_seed
 from .checks import parse_row
 from .observables import relation_parts
-from .plan import dense_window, share_key, slot_answers
+from .plan import dense_window, share_key, slot_answers, slot_subgroup, slot_subgroup_text
 from .spec import Interface, angle_gap, scalar_gap, spec_of
 
 CHANCE = 0.2
@@ -111,13 +114,19 @@ def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
             if bound > CHANCE and inside >= 5:
                 out.append(("floor_concentration", inside, 1.0 / slots, f"{q}: {where}",
                             "none by options; re-contract the questions or accept and report"))
-        zeros = sum(len(v) for v in slot_answers(ss).values()) if kind == "scalar" else 0
-        if zeros and zeros / len(ss) > CHANCE:
-            carriers = min(len(ss), zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
-            out.append(("zero_slot", carriers, zeros / carriers,
-                        f"{q}: {zeros} of {len(ss)} answers are exactly zero or at the printing floor; "
-                        f"that string appears in {carriers} rows",
-                        "evaluation subset keeps zero answers at one row in five"))
+        if kind != "scalar":
+            continue
+        # a slot string is one per row: answering more than a fifth of the rows of its subgroup (the
+        # kind of question a reader sees), it is the answer in more than a fifth of the rows carrying it
+        size = Counter(slot_subgroup(s) for s in ss)
+        for (sub, value), idx in slot_answers(ss).items():
+            n, zeros = size[sub], len(idx)
+            if zeros / n > CHANCE:
+                carriers = min(n, zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
+                out.append(("zero_slot", carriers, zeros / carriers,
+                            f"{q} ({slot_subgroup_text(sub)}): {zeros} of {n} answers print {ss[idx[0]].detail}; "
+                            f"that string appears in {carriers} rows",
+                            "evaluation subset keeps such answers at one row in five of their kind of question"))
     return out
 
 
@@ -448,9 +457,10 @@ def _cap_zero_answers(c: _Selection) -> None:
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
             zgroups[(s.task, s.source, s.obs.quantity)].append(i)
     for _, ids in sorted(zgroups.items()):
-        for js in slot_answers([specs[i] for i in ids]).values():
+        size = Counter(slot_subgroup(specs[i]) for i in ids)
+        for (sub, _), js in slot_answers([specs[i] for i in ids]).items():
             zeros = sorted(ids[j] for j in js)
-            allow = (len(ids) - len(zeros)) // 4
+            allow = (size[sub] - len(zeros)) // 4  # one in five of the rows of its kind of question
             if len(zeros) > allow:
                 pick = set(rng.permutation(len(zeros))[:allow].tolist())
                 for j, i in enumerate(zeros):
