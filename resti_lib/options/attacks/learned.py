@@ -39,6 +39,7 @@ import math
 import re
 import warnings
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +73,7 @@ NAME = "learned_blind"
 QUESTION_NAME = "learned_question"
 SUMMARY_SLOTS = 9  # numeric summaries per candidate (kind-specific; NaN where absent)
 FIT_THREADS = 2    # threads that grow the population attacker's trees (a tree does not depend on them)
+FOLD_THREADS = 2   # cross-validation folds fitted side by side (a fold's scores do not depend on them)
 LABELS = tuple(V.RELATION_LABELS)
 
 
@@ -373,12 +375,14 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
     n_splits = min(cfg.n_splits, n_groups)
     row_idx = np.arange(len(groups_row))
     scores = np.full((len(groups_row), 5), np.nan)
-    for train, test in GroupKFold(n_splits=n_splits).split(row_idx, groups=groups_row):
+
+    def fold(train: np.ndarray, test: np.ndarray) -> np.ndarray:
+        """The test rows' scores of a model fitted on the training rows (a fold depends on nothing
+        but its rows, so the folds run side by side and give the same scores in any order)."""
         tr = (train[:, None] * 5 + np.arange(5)).ravel()
         te = (test[:, None] * 5 + np.arange(5)).ravel()
         if y[tr].all() or not y[tr].any():
-            scores[test] = 0.0
-            continue
+            return np.zeros((len(test), 5))
         Xf = X
         if fold_features is not None:
             mask = np.zeros(len(groups_row), bool)
@@ -386,18 +390,22 @@ def grouped_scores(X: np.ndarray, y: np.ndarray, groups: list, cfg: LearnedConfi
             Xf = np.concatenate([X, fold_features(mask)], axis=1)
             Xf = Xf[:, ~np.all(np.isnan(Xf[tr]), axis=0)]
         model = (make_model or _model)(cfg)
-        # one OpenMP thread for the gradient boosting (its threads spin while they wait, and a busy
-        # machine stalls them); the population attacker's forest grows its trees on FIT_THREADS joblib
-        # threads, which do not change a tree
-        with threadpool_limits(1), warnings.catch_warnings():
-            # a forest hands its trees to joblib with the caller's warning filters, and warns on every
-            # tree when that list is empty (a host that cleared it); the trees do not read it
-            warnings.filterwarnings("ignore", message=".*sklearn.utils.parallel.delayed", category=UserWarning)
-            model.fit(Xf[tr], y[tr])
-            if hasattr(model, "n_jobs"):
-                model.n_jobs = 1  # trees' votes summed in one order
-            proba = model.predict_proba(Xf[te])[:, list(model.classes_).index(True)]
-        scores[test] = proba.reshape(-1, 5)
+        model.fit(Xf[tr], y[tr])
+        if hasattr(model, "n_jobs"):
+            model.n_jobs = 1  # trees' votes summed in one order
+        return model.predict_proba(Xf[te])[:, list(model.classes_).index(True)].reshape(-1, 5)
+
+    folds = list(GroupKFold(n_splits=n_splits).split(row_idx, groups=groups_row))
+    # one OpenMP thread per gradient boosting (its threads spin while they wait, and a busy machine
+    # stalls them), the folds on FOLD_THREADS threads instead; the population attacker's forest grows
+    # its trees on FIT_THREADS joblib threads, which do not change a tree
+    with threadpool_limits(1), warnings.catch_warnings():
+        # a forest hands its trees to joblib with the caller's warning filters, and warns on every
+        # tree when that list is empty (a host that cleared it); the trees do not read it
+        warnings.filterwarnings("ignore", message=".*sklearn.utils.parallel.delayed", category=UserWarning)
+        with ThreadPoolExecutor(max_workers=FOLD_THREADS) as ex:
+            for (_, test), s in zip(folds, ex.map(lambda f: fold(*f), folds)):
+                scores[test] = s
     return scores
 
 
