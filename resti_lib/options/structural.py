@@ -119,7 +119,7 @@ def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
         # a slot string is one per row: answering more than a fifth of the rows of its subgroup (the
         # kind of question a reader sees), it is the answer in more than a fifth of the rows carrying it
         size = Counter(slot_subgroup(s) for s in ss)
-        for (sub, value), idx in slot_answers(ss).items():
+        for (sub, _), idx in slot_answers(ss).items():
             n, zeros = size[sub], len(idx)
             if zeros / n > CHANCE:
                 carriers = min(n, zeros + int(round(params["model"]["zero_slot_ratio"] * zeros)))
