@@ -5,7 +5,7 @@ and slots, the letter schedule, and the reject signal of a candidate set."""
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -155,6 +155,11 @@ def slot_subgroup_text(sub: tuple) -> str:
     """A :func:`slot_subgroup` in words (``"object, at an instant"``)."""
     _, camera, instant = sub
     return f"{'camera' if camera else 'object'}, {'at an instant' if instant else 'over a window'}"
+
+
+def slot_subgroup_sizes(specs: list) -> Counter:
+    """Rows per :func:`slot_subgroup` (scalars): what a slot answer's share is counted over."""
+    return Counter(slot_subgroup(s) for s in specs if s.kind == "scalar")
 
 
 def slot_answers(specs: list) -> dict[tuple, list[int]]:

@@ -53,7 +53,7 @@ from ..errors import InputError
 from ..rng import stable_seed
 from .checks import parse_row
 from .observables import relation_parts
-from .plan import dense_window, share_key, slot_answers, slot_subgroup, slot_subgroup_text
+from .plan import dense_window, share_key, slot_answers, slot_subgroup_sizes, slot_subgroup_text
 from .spec import Interface, angle_gap, scalar_gap, spec_of
 
 CHANCE = 0.2
@@ -118,7 +118,7 @@ def _floor_and_zero_leaks(sp: list, params: dict) -> list[Leak]:
             continue
         # a slot string is one per row: answering more than a fifth of the rows of its subgroup (the
         # kind of question a reader sees), it is the answer in more than a fifth of the rows carrying it
-        size = Counter(slot_subgroup(s) for s in ss)
+        size = slot_subgroup_sizes(ss)
         for (sub, _), idx in slot_answers(ss).items():
             n, zeros = size[sub], len(idx)
             if zeros / n > CHANCE:
@@ -457,8 +457,9 @@ def _cap_zero_answers(c: _Selection) -> None:
         if s is not None and s.kind == "scalar" and rid[i] not in drop:
             zgroups[(s.task, s.source, s.obs.quantity)].append(i)
     for _, ids in sorted(zgroups.items()):
-        size = Counter(slot_subgroup(specs[i]) for i in ids)
-        for (sub, _), js in slot_answers([specs[i] for i in ids]).items():
+        group = [specs[i] for i in ids]
+        size = slot_subgroup_sizes(group)
+        for (sub, _), js in slot_answers(group).items():
             zeros = sorted(ids[j] for j in js)
             allow = (size[sub] - len(zeros)) // 4  # one in five of the rows of its kind of question
             if len(zeros) > allow:

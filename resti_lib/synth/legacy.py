@@ -1602,17 +1602,22 @@ def build_rows(world: World, slots: list[Slot], seed: int) -> tuple[list[dict], 
 
 def _premise_reveals(premised: list[tuple[int, Slot, Draft]]) -> list[int]:
     """Rows (of released Pose rows with a printed premise) whose premise is printed at a time another
-    of them asks as its target in the same sequence (a converse pair; another camera of a Waymo
-    segment counts), or prints as the answer of another of them in the same video."""
+    of them asks as its target in the same recording (the segment a reader sees in the video name: a
+    converse pair, or another camera of the segment), or prints as the answer of another of them in
+    the same video."""
+    from ..options.observables import sequence_of
+
+    recordings: dict[str, list] = {}
+    for item in premised:
+        recordings.setdefault(sequence_of(item[1].video, item[1].source)[0], []).append(item)
     out = []
-    for i, sl, d in premised:
-        t0 = d.contract["premise_time"]
-        for j, sj, dj in premised:
-            if j != i and sj.sequence == sl.sequence and (
-                    dj.contract["times"][0] == t0 or (sj.video == sl.video and dj.true_answer == d.premise)):
+    for rec in recordings.values():
+        for i, sl, d in rec:
+            t0 = d.contract["premise_time"]
+            if any(j != i and (dj.contract["times"][0] == t0 or (sj.video == sl.video and dj.true_answer == d.premise))
+                   for j, sj, dj in rec):
                 out.append(i)
-                break
-    return out
+    return sorted(out)
 
 
 __all__ = ["TASK_ORDER", "TASK_SOURCES", "Draft", "Slot", "World", "assign_variants", "build_rows"]

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections import defaultdict
 from pathlib import Path
 from typing import ClassVar
 
@@ -54,6 +55,7 @@ from ..geometry.frames import invert_T, rotation_angle_deg
 from ..geometry.trajectory import PoseTrack
 from ..io.figures import save_figure
 from ..measure.motion import sample_window
+from ..options.observables import sequence_of
 from . import register_task
 from .base import AnswerSpec, Case, Exclude, Outcome, Task
 
@@ -319,30 +321,38 @@ class Pose(Task):
 
     def contract_group(self, cases: list[Case]) -> None:
         """A premise that reveals another row's answer moves (:func:`premise_reveals`,
-        :func:`unrevealing_premise_time`): defect ``premise_reveals_answer``, the legacy premise time
-        kept in the evidence; a row whose recording offers no such time is excluded
-        (``no_unrevealing_premise``)."""
-        dec = int(cases[0].params["decimals"]) if cases else 2
-        moves = premise_reveals(cases, dec)
-        for case, revealed in moves:
-            s, o = case.state, case.outcome
-            o.defects.append("premise_reveals_answer")
-            t_new = unrevealing_premise_time(case, cases, dec)
-            legacy_t0 = s["t0"]
-            if t_new is None:
-                o.exclude("no_unrevealing_premise", premise_time=legacy_t0, answer_of_rows=revealed)
-                continue
-            m0 = case.measure("pose", {"kind": "camera"}, [t_new])
-            T0, T1 = np.asarray(m0.value, float), case.value
-            s.update(t0=t_new, T0=T0)
-            case.contract.params["premise_time"] = t_new
-            o.frames["premise"] = m0.evidence
-            o.evidence["premise_moved"] = {"legacy_premise_time": legacy_t0, "premise_time": t_new,
-                                           "answer_of_rows": revealed}
-            o.evidence["premise_to_target"] = {"displacement_m": float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])),
-                                               "rotation_deg": rotation_angle_deg(T0[:3, :3], T1[:3, :3])}
-            o.time_start, o.time_end = min(t_new, s["t1"]), max(t_new, s["t1"])
-            case.observables.update(premise=T0, premise_time=t_new)
+        :func:`unrevealing_premise_time`, per recording; the moved rows of a video share one time):
+        defect ``premise_reveals_answer``, the legacy premise time kept in the evidence; a row whose
+        recording offers no such time is excluded (``no_unrevealing_premise``)."""
+        if not cases:
+            return
+        dec = int(cases[0].params["decimals"])
+        recordings: dict[str, list[Case]] = defaultdict(list)
+        for c in cases:
+            if c.state.get("printed"):
+                recordings[recording_of(c)].append(c)
+        for rec in recordings.values():
+            new_time: dict[str, float | None] = {}
+            for case, revealed in premise_reveals(rec, dec):
+                s, o = case.state, case.outcome
+                o.defects.append("premise_reveals_answer")
+                if o.video not in new_time:
+                    new_time[o.video] = unrevealing_premise_time(case, rec, dec)
+                t_new, legacy_t0 = new_time[o.video], s["t0"]
+                if t_new is None:
+                    o.exclude("no_unrevealing_premise", premise_time=legacy_t0, answer_of_rows=revealed)
+                    continue
+                m0 = case.measure("pose", {"kind": "camera"}, [t_new])
+                T0, T1 = np.asarray(m0.value, float), case.value
+                s.update(t0=t_new, T0=T0)
+                case.contract.params["premise_time"] = t_new
+                o.frames["premise"] = m0.evidence
+                o.evidence["premise_moved"] = {"legacy_premise_time": legacy_t0, "premise_time": t_new,
+                                               "answer_of_rows": revealed}
+                o.evidence["premise_to_target"] = {"displacement_m": float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])),
+                                                   "rotation_deg": rotation_angle_deg(T0[:3, :3], T1[:3, :3])}
+                o.time_start, o.time_end = min(t_new, s["t1"]), max(t_new, s["t1"])
+                case.observables.update(premise=T0, premise_time=t_new)
 
     def diagnose(self, case: Case) -> None:
         p, legacy, T1 = case.params, case.legacy, case.value
@@ -365,8 +375,7 @@ class Pose(Task):
 
     def rewrite(self, case: Case) -> str:
         s = case.state
-        return question_text(case.source, s["t0"], s["t1"],
-                             V.format_pose(s["T0"], int(case.params["decimals"]), compact=s["compact"]))
+        return question_text(case.source, s["t0"], s["t1"], _printed(case, s["T0"], int(case.params["decimals"])))
 
 
 # ------------------------------------------------------------------ premises that reveal answers
@@ -376,34 +385,40 @@ def _printed(case: Case, T: np.ndarray, dec: int) -> str:
     return V.format_pose(T, dec, compact=case.state["compact"])
 
 
-def premise_reveals(cases: list[Case], decimals: int) -> list[tuple[Case, list[int]]]:
-    """The rows whose printed premise reveals another row's answer, with those rows: the premise time
-    is the target time of another row of the same sequence (a converse pair; another camera of a Waymo
-    segment is the answer up to the camera's mount), or the premise prints as the answer of another
-    row of the same video (a camera at rest). Every pair is counted; a row may reveal several."""
-    printed = [c for c in cases if c.state.get("printed")]
+def recording_of(case: Case) -> str:
+    """The recording a reader sees a row in: the Waymo segment named in the video (its camera videos
+    are one recording), else the video."""
+    return sequence_of(case.outcome.video, case.source)[0]
+
+
+def premise_reveals(rec: list[Case], decimals: int) -> list[tuple[Case, list[int]]]:
+    """The rows of one recording (``rec``, with printed premises) whose premise reveals another row's
+    answer, with those rows: the premise time is another row's target time (a converse pair; another
+    camera of a Waymo segment is the answer up to the camera's mount), or the premise prints as the
+    answer of another row of the same video (a camera at rest). Every pair is counted; a row may
+    reveal several."""
+    answers = [_printed(o, o.value, decimals) for o in rec]
     out = []
-    for c in printed:
-        hit = [o.outcome.row for o in printed if o is not c and o.contract.sequence == c.contract.sequence and (
+    for i, c in enumerate(rec):
+        premise = _printed(c, c.state["T0"], decimals)
+        hit = [o.outcome.row for j, o in enumerate(rec) if j != i and (
             abs(o.state["t1"] - c.state["t0"]) <= c.state["tol_s"]
-            or (o.outcome.video == c.outcome.video
-                and _printed(o, o.value, decimals) == _printed(c, c.state["T0"], decimals)))]
+            or (o.outcome.video == c.outcome.video and answers[j] == premise))]
         if hit:
             out.append((c, sorted(hit)))
     return out
 
 
-def unrevealing_premise_time(case: Case, cases: list[Case], decimals: int) -> float | None:
-    """The earliest whole second of the row's recording that can be its premise without revealing an
-    answer: no row of the sequence asks it as a target, the camera's pose there is valid and prints
-    unlike every answer of the video (its own included). None when no second qualifies. One rule for
-    every moved row, so the moved rows of a video share one premise, as ScanNet's share the initial
-    pose."""
+def unrevealing_premise_time(case: Case, rec: list[Case], decimals: int) -> float | None:
+    """The earliest whole second of the row's video that can be its premise without revealing an
+    answer: no row of its recording ``rec`` asks it as a target, the camera's pose there is valid and
+    prints unlike every answer of the video (its own included). None when no second qualifies. One
+    rule for every moved row, so the moved rows of a video share one premise, as ScanNet's share the
+    initial pose."""
     track: PoseTrack = case.state["track"]
     tol = case.state["tol_s"]
-    seq = [o for o in cases if o.state.get("printed") and o.contract.sequence == case.contract.sequence]
-    targets = np.array([o.state["t1"] for o in seq], float)
-    answers = {_printed(o, o.value, decimals) for o in seq if o.outcome.video == case.outcome.video}
+    targets = np.array([o.state["t1"] for o in rec], float)
+    answers = {_printed(o, o.value, decimals) for o in rec if o.outcome.video == case.outcome.video}
     end = float(track.times[track.valid].max()) if track.valid.any() else -1.0
     for t in np.arange(0.0, np.floor(end) + 1.0):
         if np.any(np.abs(targets - t) <= tol):
@@ -484,6 +499,7 @@ __all__ = [
     "pose_at_time",
     "premise_reveals",
     "question_text",
+    "recording_of",
     "resolve_premise",
     "timestamp_search",
     "unrevealing_premise_time",

@@ -200,14 +200,10 @@ def audit_rows(task: Task, rows: pd.DataFrame, ctx: SourceContext, params: dict)
             continue
         cases.append(case)
     task.contract_group(cases)
-    for case in cases:
-        if case.outcome.verdict == "excluded":
-            case.outcome.contract = case.contract.to_dict()
-    cases = [c for c in cases if c.outcome.verdict != "excluded"]
-    task.diagnose_all(cases)
+    task.diagnose_all([c for c in cases if c.outcome.verdict != "excluded"])
     for case in cases:
         o, d = case.outcome, case.diagnosis
-        if o.verdict == "excluded":  # a group-level diagnosis may exclude
+        if o.verdict == "excluded":  # a group-level contract repair or diagnosis may exclude
             o.contract = case.contract.to_dict()
             continue
         if case.answer is None or d is None:

@@ -105,7 +105,6 @@ class TrajectoryKind(KindBuilder):
             raise Reject("a distractor set broke the separation or plausibility constraints")
         return alls
 
-
     def near(self, st, a, b) -> bool:
         """Two moving answers of one structure, turns that print alike and totals closer than the
         separation floor: the camera videos of one Waymo segment describe one drive, each from its
