@@ -73,7 +73,7 @@ def setting(params: dict | None, key: str) -> Any:
 # ------------------------------------------------------------------------------------------ schema
 
 #: Keys whose values are integers (their defaults may be written as numbers or null).
-INTEGER_KEYS = frozenset({"seed", "world_seed", "jobs", "decimals", "knn", "max_tries", "min_group", "max_iter",
+INTEGER_KEYS = frozenset({"seed", "world_seed", "jobs", "decimals", "knn", "max_knn", "max_tries", "min_group", "max_iter",
                           "n_estimators", "max_depth", "folds", "rounds"})
 #: Key-name rules for numbers, first match wins: (pattern on the key, low, low included, what it means
 #: [, high (included)]).

@@ -83,45 +83,105 @@ def _kth_distinct_gap(u: np.ndarray, k: int) -> np.ndarray:
     return np.sort(np.vstack(cand), axis=0)[k - 1]
 
 
+def _bandwidths(b: np.ndarray, half: np.ndarray, k: int, bw: float, max_distinct: int) -> np.ndarray:
+    """Each value's kernel bandwidth: ``bw`` times the distance to its ``k``-th nearest distinct other value,
+    never below its half rounding cell ``half``. Values that differ by less than 1/max_distinct of the span
+    are one distinct value (keeps the fit O(n log n) when a group holds 100k rows)."""
+    span = float(b.max() - b.min())
+    res = span / max_distinct if span > 0 else 1.0
+    q = np.round((b - b.min()) / res) if span > 0 else np.zeros_like(b)
+    uq, inv = np.unique(q, return_inverse=True)
+    ub = b.min() + uq * res if span > 0 else np.array([b[0]])
+    gap = _kth_distinct_gap(ub, k)
+    if not np.isfinite(gap).any():
+        gap = np.full_like(gap, 8.0 * float(half.max()))
+    gap = np.where(np.isfinite(gap), gap, np.nanmax(np.where(np.isfinite(gap), gap, np.nan)))
+    return np.maximum(bw * gap[inv], half)
+
+
+KNN_STEP = 1.5        # the neighbour counts tried by select_knn: k, 1.5 k, 2.25 k, ... up to k_max
+KNN_EVAL_ROWS = 512   # held-out answers scored per count (evenly spaced in value order beyond that)
+
+
+def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192) -> int:
+    """The neighbour count of the adaptive bandwidth, among ``k``, ``k * KNN_STEP``, ... ``k_max``, whose
+    density of the other recordings' answers gives each recording's answers (``groups``: one label per
+    value; None: each value its own) the highest mean log density.
+
+    Why: the distractors of one row are drawn from a density that holds every other recording's answers,
+    so a kernel much narrower than the spacing of independent answers leaves a bump at each answer: the
+    distractors of the other rows then sit where this row's answer is (an echo) and a reader holding the
+    release finds the answer where the candidates of other recordings outnumber their answers. The
+    count that best predicts held-out recordings is as wide as the answers' independence allows (several
+    answers of one recording, the same car asked twice, are one piece of evidence), and no wider: a
+    wider kernel spreads the distractors where no answer is. Cost: O(n * min(n, KNN_EVAL_ROWS)) per count."""
+    b = np.asarray(b, float)
+    n = b.size
+    g = np.arange(n) if groups is None else np.asarray([str(x) for x in groups], dtype=object)
+    ladder = []
+    kk = float(k)
+    while int(round(kk)) <= k_max:
+        if int(round(kk)) not in ladder:
+            ladder.append(int(round(kk)))
+        kk *= KNN_STEP
+    if k_max not in ladder:
+        ladder.append(int(k_max))
+    ev = np.arange(n) if n <= KNN_EVAL_ROWS else np.argsort(b, kind="stable")[
+        np.linspace(0, n - 1, KNN_EVAL_ROWS).round().astype(int)]
+    other = g[ev][:, None] != g[None, :]                   # (E, n): kernels of other recordings only
+    n_other = other.sum(axis=1)
+    keep = n_other > 0
+    if keep.sum() < 2:
+        return int(k)
+    ev, other, n_other = ev[keep], other[keep], n_other[keep]
+    span = float(b.max() - b.min()) or 1.0
+    floor = 1e-3 / span                                    # a lone answer costs a bounded penalty
+    best, best_score = int(k), -np.inf
+    for kk in ladder:
+        h = _bandwidths(b, np.broadcast_to(half, b.shape), kk, bw, max_distinct)
+        dens = ((np.exp(-0.5 * ((b[ev][:, None] - b[None, :]) / h[None, :]) ** 2) / h[None, :]) * other).sum(axis=1)
+        score = float(np.mean(np.log(dens / (n_other * math.sqrt(2.0 * math.pi)) + floor)))
+        if score > best_score + 1e-9:
+            best, best_score = kk, score
+    return best
+
+
 @dataclass
 class Marginal:
     """Adaptive KDE of one field's base values, as a map between values and standard normal scores.
 
     ``b``: the base value of each row (in row order); ``h``: each row's kernel bandwidth;
-    ``grid``/``total``: the summed kernel CDF of all rows on a grid.
+    ``grid``/``total``: the summed kernel CDF of all rows on a grid; ``k``: the neighbour count of the
+    bandwidths.
     """
 
     b: np.ndarray
     h: np.ndarray
     grid: np.ndarray
     total: np.ndarray
+    k: int = 4  # the neighbour count of the bandwidth
 
     @property
     def n(self) -> int:
         return int(self.b.size)
 
     @classmethod
-    def fit(cls, b, half_cell, *, k: int = 4, bw: float = 1.0, grid: int = 2048, max_distinct: int = 8192
-            ) -> "Marginal":
+    def fit(cls, b, half_cell, *, k: int = 4, bw: float = 1.0, grid: int = 2048, max_distinct: int = 8192,
+            k_max: int = 0, groups=None) -> "Marginal":
         """Fit on base values ``b`` (one per row) with ``half_cell`` (scalar or per row) the half
-        width of each value's printed rounding cell in base space (the smallest bandwidth)."""
+        width of each value's printed rounding cell in base space (the smallest bandwidth).
+
+        ``k_max`` above ``k``: the neighbour count of the bandwidth is chosen among ``k`` .. ``k_max``
+        (:func:`select_knn`) as the one whose density best predicts the answers of each recording
+        (``groups``, one label per value) from the other recordings."""
         b = np.asarray(b, dtype=float)
         if b.size == 0 or not np.all(np.isfinite(b)):
             raise ValueError("a marginal needs finite values")
         half = np.broadcast_to(np.asarray(half_cell, dtype=float), b.shape)
         half = np.maximum(half, 1e-9)
-        span = float(b.max() - b.min())
-        # values that differ by less than 1/max_distinct of the span are one distinct value for the
-        # bandwidth (keeps the fit O(n log n) when a group holds 100k rows)
-        res = span / max_distinct if span > 0 else 1.0
-        q = np.round((b - b.min()) / res) if span > 0 else np.zeros_like(b)
-        uq, inv = np.unique(q, return_inverse=True)
-        ub = b.min() + uq * res if span > 0 else np.array([b[0]])
-        gap = _kth_distinct_gap(ub, k)
-        if not np.isfinite(gap).any():
-            gap = np.full_like(gap, 8.0 * float(half.max()))
-        gap = np.where(np.isfinite(gap), gap, np.nanmax(np.where(np.isfinite(gap), gap, np.nan)))
-        h = np.maximum(bw * gap[inv], half)
+        if k_max > k:
+            k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct)
+        h = _bandwidths(b, half, k, bw, max_distinct)
         lo, hi = float((b - 6.0 * h).min()), float((b + 6.0 * h).max())
         g = np.linspace(lo, hi, grid)
         # the CDF of all rows on the grid, summed over distinct (value, bandwidth) pairs in chunks
@@ -130,19 +190,22 @@ class Marginal:
         for s in range(0, len(pairs), 512):
             p, c = pairs[s:s + 512], counts[s:s + 512]
             total += (ndtr((g[:, None] - p[None, :, 0]) / p[None, :, 1]) * c[None, :]).sum(axis=1)
-        return cls(b, h, g, total)
+        return cls(b, h, g, total, int(k))
 
     # -------------------------------------------------------------------- maps
-    def row_map(self, leave_out: int | None = None, lower: float | None = None, upper: float | None = None
+    def row_map(self, leave_out=None, lower: float | None = None, upper: float | None = None
                 ) -> "Map1D":
-        """The value <-> score map of the group, without row ``leave_out`` (its own answer), and
+        """The value <-> score map of the group, without the rows ``leave_out`` (an index or indices:
+        the row's own answer, and those of its recording; all of them: the whole group), and
         conditioned on ``lower <= b <= upper`` (what the row can print: a magnitude above zero, a
         speed a vehicle can reach) so that no draw falls where no answer of the row can be."""
         n = self.n
-        if leave_out is None or n < 2:
+        out = np.atleast_1d(np.asarray([] if leave_out is None else leave_out, dtype=int))
+        if out.size == 0 or out.size >= n:
             p = self.total / n
-        else:
-            p = (self.total - ndtr((self.grid - self.b[leave_out]) / self.h[leave_out])) / (n - 1)
+        else:  # the row's own answer (and its recording's), out of the group's summed CDF
+            own = ndtr((self.grid[:, None] - self.b[out][None, :]) / self.h[out][None, :]).sum(axis=1)
+            p = (self.total - own) / (n - out.size)
         if lower is not None or upper is not None:
             p_lo = float(np.interp(lower, self.grid, p)) if lower is not None else 0.0
             p_hi = float(np.interp(upper, self.grid, p)) if upper is not None else 1.0
@@ -248,22 +311,29 @@ class FieldModel:
     copula: Copula
     cov_scores: np.ndarray  # (n, k) covariate scores of every member row
     index: dict  # rid -> member position
+    recording: dict = field(default_factory=dict)  # member position -> positions of its recording's rows
 
     @classmethod
     def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
-            min_rows: int = 8, prior_sd=0.5, prior_center=None) -> "FieldModel":
+            min_rows: int = 8, prior_sd=0.5, prior_center=None, max_knn: int = 0,
+            groups: list | None = None) -> "FieldModel":
         """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
         ``H`` and covariates ``W`` (n, k).
 
         A group with fewer than ``min_rows`` answers cannot define a distribution alone: each field's
         marginal then also holds pseudo-answers at the normal quantiles of a weak prior (the rows'
         mean, or ``prior_center`` without rows, and the larger of their spread and ``prior_sd``),
-        as many as the rows are short of ``min_rows``."""
+        as many as the rows are short of ``min_rows``.
+
+        ``groups``: each row's recording. A row's distractors are then drawn without its recording's
+        answers (:meth:`prepare`), and ``max_knn`` above ``knn`` chooses each field's bandwidth by how
+        well the other recordings predict a recording's answers (:func:`select_knn`)."""
         n = len(rids)
         B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
         H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
         d = B.shape[1]
         m = max(0, min_rows - n)
+        labels = [str(x) for x in groups] if groups is not None else [f"row:{i}" for i in range(n)]
         fields = []
         for j in range(d):
             bj, hj = B[:, j], H[:, j]
@@ -273,7 +343,7 @@ class FieldModel:
                 pseudo = centre + sd * norm_quantiles(m)
                 bj = np.concatenate([bj, pseudo])
                 hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
-            fields.append(Marginal.fit(bj, hj, k=knn))
+            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)]))
         covs, cs = [], np.zeros((n, 0))
         if W is not None and W.size and n >= min_rows:
             W = np.asarray(W, float).reshape(n, -1)
@@ -287,19 +357,26 @@ class FieldModel:
             cop = Copula.fit(np.column_stack([us, cs]), d, shrink=shrink)
         else:
             cop = Copula(np.eye(d), d)
-        return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)})
+        members: dict = defaultdict(list)
+        for i, lab in enumerate(labels):
+            members[lab].append(i)
+        return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)},
+                   {i: np.array(members[lab]) for i, lab in enumerate(labels)})
 
     def prepare(self, rid: str | None, bounds: list | None = None) -> "RowDraw":
-        """The maps (without the row's own answer, within the row's ``bounds`` [(lower, upper) per
-        field, base space]) and conditional model of one row, computed once; a row outside the model
-        (``None`` or not a member) draws from the whole group."""
+        """The maps (without the answers of the row's recording, its own included, within the row's
+        ``bounds`` [(lower, upper) per field, base space]) and conditional model of one row, computed
+        once; a row outside the model (``None`` or not a member) draws from the whole group."""
         i = self.index.get(rid) if rid is not None else None
         u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
         if i is None and self.cov_scores.shape[1]:
             u_w = np.zeros(self.cov_scores.shape[1])
         mu, L = self.copula.conditional(u_w)
         bounds = bounds or [(None, None)] * len(self.fields)
-        return RowDraw([f.row_map(i, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
+        out = self.recording.get(i, i) if i is not None else None
+        if out is not None and np.size(out) >= self.fields[0].n:  # one recording holds the group: its row alone
+            out = i
+        return RowDraw([f.row_map(out, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
 
 
 def norm_quantiles(m: int) -> np.ndarray:
@@ -376,8 +453,50 @@ def lattice_scores(z_a: np.ndarray, n: int, width: float, rng: np.random.Generat
     return ndtri(np.clip(q, _P_MIN, 1.0 - _P_MIN))[:, :, None]
 
 
-def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, groups: list | None = None,
-                         extra: tuple | None = None) -> np.ndarray:
+def empirical_kappa(keys: list[tuple], values: np.ndarray, floor: float) -> list[float]:
+    """Pseudo-rows of shrinkage per level of nested ``keys`` (``values``: (n, d), one entry per distinct
+    key and value), estimated from the data: the within-class variance over the variance of the class
+    means beyond their sampling noise (method of moments, classes compared within their parent), never
+    below ``floor``. Classes whose means differ by no more than their noise get an infinite count
+    (the parent's mean): an offset fitted on noise would shift each class's draws by its noise, and a
+    population of classes that share one distribution (speeds of parked and driving cars of every
+    class) would be drawn wider than any class's answers."""
+    values = np.asarray(values, float).reshape(len(keys), -1)
+    d = values.shape[1]
+    depth = max((len(k) for k in keys), default=0)
+    out = []
+    for lv in range(1, depth + 1):
+        cls: dict = defaultdict(list)
+        for k, v in zip(keys, values):
+            if len(k) >= lv:
+                cls[tuple(k[:lv])].append(v)
+        means = {c: np.mean(vs, axis=0) for c, vs in cls.items()}
+        ss_w = sum(float(((np.asarray(vs) - means[c]) ** 2).sum()) for c, vs in cls.items())
+        df_w = sum(len(vs) - 1 for vs in cls.values())
+        parents: dict = defaultdict(list)
+        for c in cls:
+            parents[c[:lv - 1]].append(c)
+        dev, df_b, noise, n_cls = 0.0, 0, 0.0, 0
+        for cs in parents.values():
+            if len(cs) < 2:
+                continue
+            M = np.array([means[c] for c in cs])
+            dev += float(((M - M.mean(axis=0)) ** 2).sum()) / d
+            df_b += len(cs) - 1
+            noise += sum(1.0 / len(cls[c]) for c in cs)
+            n_cls += len(cs)
+        if df_w <= 0 or df_b <= 0:
+            out.append(float(floor))
+            continue
+        s2w = ss_w / df_w / d
+        tau2 = dev / df_b - s2w * noise / n_cls
+        out.append(float(floor) if tau2 <= 0 and s2w == 0 else
+                   max(float(floor), s2w / tau2) if tau2 > 0 else math.inf)
+    return out
+
+
+def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa, *, groups: list | None = None,
+                         extra: tuple | None = None, empirical: bool = False) -> np.ndarray:
     """Leave-one-out means of ``b0`` per nested key, each level shrunk towards its parent.
 
     ``keys[i]`` is a tuple of levels for row i, e.g. ``(quantity, subject_class)``: the offset of a
@@ -387,6 +506,9 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, gro
     again, in another recording or a copy of the release): each distinct (key, value) counts once,
     so an attacker who knows the typical value of a class learns nothing the distractors do not
     share, and repeated answers do not pull their class's offset onto themselves.
+
+    ``kappa``: pseudo-rows per level (one number for every level, or one per level); ``empirical``:
+    ``kappa`` is the floor of counts estimated from the entries (:func:`empirical_kappa`).
 
     ``extra``: ``(keys, values, groups)`` of further evidence that enters the means but gets no
     offset (the box edges of the same classes asked in another task); an entry of the row's own
@@ -420,6 +542,10 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, gro
     n_all = n + len(xkeys)
     out_u = np.zeros_like(ub)
     depth = max((len(k) for k in ukeys + xkeys), default=0)
+    if empirical:
+        kappas = empirical_kappa(ukeys + xkeys, np.concatenate([ub, xb]) if len(xb) else ub, float(kappa))
+    else:
+        kappas = [float(x) for x in kappa] if np.ndim(kappa) else [float(kappa)] * depth
     sums: list[dict] = []
     for lv in range(1, depth + 1):
         acc: dict = defaultdict(lambda: [np.zeros(ub.shape[1]), 0])
@@ -447,7 +573,9 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, gro
             s_, c_ = sums[lv - 1][k[:lv]]
             dl = [j for j in drop if xkeys[j][:lv] == k[:lv]]
             s_ = s_ - ub[i] - (xb[dl].sum(axis=0) if dl else 0.0)
-            m = (s_ + kappa * m) / (c_ - 1 - len(dl) + kappa)
+            kp = kappas[lv - 1]
+            if math.isfinite(kp):  # an infinite count keeps the parent's mean
+                m = (s_ + kp * m) / (c_ - 1 - len(dl) + kp)
         out_u[i] = m
     out = out_u[row_of] if len(keys) else np.zeros_like(b0)
     return out[:, 0] if one else out

@@ -52,6 +52,7 @@ from ..rng import row_rng, stable_seed
 from .follow import FOLLOWS, box_edge_map, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
+from .population import FieldModel
 from .spec import (
     Interface,
     OptionSpec,
@@ -217,6 +218,16 @@ class Stage:
         return None
 
     # -------------------------------------------------------------------- building
+    def fit_fields(self, plans: list, B, H, W, **kw) -> FieldModel:
+        """The population model of one group's answers (``B``, half cells ``H``, covariates ``W``) with the
+        model params: bandwidth neighbours (``knn``, chosen up to ``max_knn`` by how well the other
+        recordings predict each recording's answers), copula shrinkage, the smallest group; each row's
+        distractors drawn without its recording's answers (the recording: the row's source sequence)."""
+        return FieldModel.fit([p.rid for p in plans], B, H, W, knn=int(self.model["knn"]),
+                              max_knn=int(self.model.get("max_knn") or 0), shrink=self.model["copula_shrink"],
+                              min_rows=int(self.model["min_group"]), groups=[p.spec.obs.sequence for p in plans],
+                              **kw)
+
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
               **kw) -> np.ndarray:
         """Draw through the row's prepared model (kept for the row being built only: O(G) memory)."""

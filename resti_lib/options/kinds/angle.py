@@ -7,7 +7,6 @@ import numpy as np
 
 from ... import values as V
 from ..plan import GroupModel, Reject, RowPlan, dense_window, log_window, slot_rows
-from ..population import FieldModel
 from ..spec import (
     angle_gap,
 )
@@ -27,8 +26,7 @@ class AngleKind(KindBuilder):
                       for p, t in zip(ps, th)])
         W = np.array([[log_window(p.spec)] for p in ps])
         W = W if np.isfinite(W).all() else None
-        fm = FieldModel.fit([p.rid for p in ps], b, H, W, knn=st.model["knn"], shrink=st.model["copula_shrink"],
-                            min_rows=int(st.model["min_group"]), prior_sd=0.3)
+        fm = st.fit_fields(ps, b, H, W, prior_sd=0.3)
         gm = GroupModel("angle", fm)
         window_slot(st, g, gm, ps, th, angle_gap(ps[0].spec, st.params))
         return gm

@@ -12,7 +12,7 @@ from ...errors import InputError
 from ...geometry.fields import box_yaw, centre_fields, centre_from_fields, centre_half_cells, rot, rotation_preimage
 from ...rng import row_rng
 from ..plan import GroupModel, Reject, RowPlan, recorded_decimals
-from ..population import FieldModel, circular_cut, from_cut_line, hierarchical_offsets, on_cut_line
+from ..population import circular_cut, from_cut_line, hierarchical_offsets, on_cut_line
 from ..spec import (
     box_floors,
     box_separation,
@@ -82,8 +82,8 @@ class BoxKind(KindBuilder):
         members = [p.rid for p, k in zip(ps, ok) if k]
         if not members:
             raise InputError(f"{g}: no box in front of the camera", field="Answer Detail")
-        fm = FieldModel.fit(members, F[ok], Hh[ok], None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
-                            min_rows=int(st.model["min_group"]), prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0])
+        fm = st.fit_fields([p for p, k in zip(ps, ok) if k], F[ok], Hh[ok], None,
+                           prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0])
         info["group_mode"] = mode
         # rows behind the camera: draw like the nearest member in the field model (rare; recorded)
         info["proxy"] = {p.rid: members[0] for p, k in zip(ps, ok) if not k}

@@ -19,7 +19,7 @@ from ...geometry.fields import (
 from ...geometry.frames import nearest_rotation
 from ...rng import row_rng
 from ..plan import GroupModel, Reject, RowPlan, log_window, recorded_decimals
-from ..population import FieldModel, circular_cut, from_cut_line, on_cut_line
+from ..population import circular_cut, from_cut_line, on_cut_line
 from ..spec import (
     per_source,
     pose_floors,
@@ -119,11 +119,9 @@ class PoseKind(KindBuilder):
             for row in F:
                 row[5] = float(on_cut_line(row[5], cut))
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
-        fm = FieldModel.fit([p.rid for p in ps], F, Hh, W if np.isfinite(W).all() else None,
-                            knn=st.model["knn"], shrink=st.model["copula_shrink"],
-                            min_rows=int(st.model["min_group"]),
-                            prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
-                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
+        fm = st.fit_fields(ps, F, Hh, W if np.isfinite(W).all() else None,
+                           prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
+                                     [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
 
     @staticmethod

@@ -22,7 +22,7 @@ from ..plan import (
     slot_rows,
     slot_subgroup,
 )
-from ..population import FieldModel, hierarchical_offsets
+from ..population import hierarchical_offsets
 from ..spec import (
     scalar_bounds,
     scalar_gap,
@@ -51,7 +51,7 @@ class ScalarKind(KindBuilder):
             keys = [(p.spec.source, p.spec.obs.quantity, p.spec.obs.subject_class) for p in moving]
             oc = hierarchical_offsets(keys, b0 - ow, st.model["class_shrink"],
                                       groups=[p.spec.obs.sequence for p in moving],
-                                      extra=size_evidence(st, moving, eps))
+                                      extra=size_evidence(st, moving, eps), empirical=True)
             off = ow + oc
             for p, o in zip(moving, off):
                 info["offset"][p.rid] = float(o)
@@ -74,12 +74,9 @@ class ScalarKind(KindBuilder):
             narrow = len(moving) >= int(st.model["min_group"]) and floors < float(lat.get("below_floors", 0))
             if units < float(lat["below_units"]) or narrow:
                 info["lattice"] = float(lat["width"])
-            fm = FieldModel.fit([p.rid for p in moving], b0 - off, H, W, knn=st.model["knn"],
-                                shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
+            fm = st.fit_fields(moving, b0 - off, H, W)
         else:  # only exact zeros: distractors from a weak prior about twenty printed units
-            fm = FieldModel.fit([], None, None, None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
-                                min_rows=int(st.model["min_group"]), prior_sd=1.0,
-                                prior_center=[math.log(20 * eps + eps)])
+            fm = st.fit_fields([], None, None, None, prior_sd=1.0, prior_center=[math.log(20 * eps + eps)])
         gm_reuse = GroupModel("scalar", None, {})
         fit_reuse(gm_reuse, ps)
         info.update(gm_reuse.info)

@@ -13,7 +13,6 @@ from ...errors import OptionError
 from ...rng import row_rng
 from ..follow import turn_sum
 from ..plan import GroupModel, Reject, RowPlan, log_window, slot_rows
-from ..population import FieldModel
 from ..spec import (
     scalar_bounds,
 )
@@ -41,11 +40,9 @@ class TrajectoryKind(KindBuilder):
             H = 0.5 * st.params["separation"]["trajectory"]["min_rel_gap"] * x / (x + 0.1)
             W = np.array([[log_window(p.spec)] for p in moving])
             W = W if np.isfinite(W).all() else None
-            fm = FieldModel.fit([p.rid for p in moving], np.log(x + 0.1) - ow, H, W, knn=st.model["knn"],
-                                shrink=st.model["copula_shrink"], min_rows=int(st.model["min_group"]))
+            fm = st.fit_fields(moving, np.log(x + 0.1) - ow, H, W)
         else:  # only "no significant movement": single moves of a few metres per second of window
-            fm = FieldModel.fit([], None, None, None, knn=st.model["knn"], shrink=st.model["copula_shrink"],
-                                min_rows=int(st.model["min_group"]), prior_sd=1.0, prior_center=[math.log(3.0)])
+            fm = st.fit_fields([], None, None, None, prior_sd=1.0, prior_center=[math.log(3.0)])
         carriers = slot_rows(none, [p.rid for p in moving], st.model["zero_slot_ratio"], seed=st.seed, group=g)
         donors = sorted(p.rid for p in moving)
         for p in ps:

@@ -1,0 +1,88 @@
+"""The population model of the answers (resti_lib/options/population.py): the bandwidth chosen by how well
+other recordings predict a recording's answers, a row's distractors drawn without its recording's answers,
+and class offsets shrunk by the data's own between-class variance. Expected values are worked out by hand
+or by a direct sum over the kernels written here."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from resti_lib.options.population import FieldModel, Marginal, empirical_kappa, hierarchical_offsets, select_knn
+
+
+def _lcv_by_hand(b, groups, k):
+    """Mean log density of each value under the kernels of the other recordings' values (bandwidth: the
+    distance to the k-th nearest distinct other value), by a double loop."""
+    b = [float(x) for x in b]
+    distinct = sorted(set(b))
+    h = []
+    for x in b:
+        d = sorted(abs(x - y) for y in distinct if y != x)
+        h.append(d[min(k, len(d)) - 1])
+    span = max(b) - min(b)
+    total = 0.0
+    for i, x in enumerate(b):
+        others = [j for j in range(len(b)) if groups[j] != groups[i]]
+        dens = sum(norm.pdf((x - b[j]) / h[j]) / h[j] for j in others) / len(others)
+        total += math.log(dens + 1e-3 / span)
+    return total / len(b)
+
+
+def test_the_bandwidth_is_the_neighbour_count_that_best_predicts_other_recordings():
+    """Thirty recordings, each asking one answer five times (within a centimetre): the five copies are each
+    other's nearest neighbours, so a kernel fitted row by row is as narrow as the copies' jitter and each
+    answer is a sharp bump, echoed in every other row's distractors. Scored against the other recordings
+    only, the count is the one a double loop over the kernels finds best (k = 4 scores -5.5 there, k = 30
+    -1.41), and much wider than the count that leaves only the row itself out."""
+    rng = np.random.default_rng(3)
+    centres = rng.normal(0.0, 1.0, 30)
+    b = np.concatenate([c + rng.uniform(-1e-2, 1e-2, 5) for c in centres])
+    groups = np.repeat([f"rec{i}" for i in range(30)], 5)
+    ladder = [4, 6, 9, 14, 20, 30, 32]
+    scores = {k: _lcv_by_hand(b, groups, k) for k in ladder}
+    chosen = select_knn(b, 1e-6, groups, 4, 32)
+    # the best by hand, up to the merging of values closer than 1/8192 of the span (a copy or two here)
+    assert scores[chosen] >= max(scores.values()) - 0.02, (chosen, scores)
+    assert scores[chosen] > scores[4] + 3.0
+    alone = select_knn(b, 1e-6, None, 4, 32)
+    assert alone == 4 and chosen >= 14, (alone, chosen, scores)
+    # the marginal keeps the count it chose
+    assert Marginal.fit(b, 1e-6, k=4, k_max=32, groups=groups).k == chosen
+    assert Marginal.fit(b, 1e-6, k=4).k == 4
+
+
+def test_a_row_draws_without_its_recordings_answers():
+    """The map of a row is the mixture CDF of the kernels of the other recordings' answers: summed here
+    kernel by kernel from the fitted centres and bandwidths, at points across the range."""
+    b = np.array([0.0, 0.1, 0.2, 1.0, 1.1, 2.0, 2.2, 3.0, 3.5, 4.0])
+    groups = ["a", "a", "a", "b", "b", "c", "c", "d", "e", "f"]
+    fm = FieldModel.fit([f"r{i}" for i in range(10)], b[:, None], np.full((10, 1), 0.01), None, knn=2, shrink=3.0,
+                        min_rows=2, groups=groups)
+    m = fm.fields[0]
+    draw = fm.prepare("r1")  # recording a: rows 0, 1 and 2 are out
+    others = [3, 4, 5, 6, 7, 8, 9]
+    for x in (-0.5, 0.15, 0.9, 1.6, 2.7, 3.9):
+        by_hand = np.mean([norm.cdf((x - m.b[j]) / m.h[j]) for j in others])
+        assert norm.cdf(draw.maps[0].score(x)[0]) == pytest.approx(by_hand, abs=2e-3)
+    # a row alone in its recording leaves out its own answer only
+    draw = fm.prepare("r7")
+    for x in (0.5, 3.2):
+        by_hand = np.mean([norm.cdf((x - m.b[j]) / m.h[j]) for j in range(10) if j != 7])
+        assert norm.cdf(draw.maps[0].score(x)[0]) == pytest.approx(by_hand, abs=2e-3)
+
+
+def test_class_offsets_shrink_by_the_data_own_between_class_variance():
+    """Two classes of two values each. Within-class variance (ddof 1): (2 + 2) / 2 = 2; the class means 1
+    and 11 vary by 50 around their mean, less the noise of a mean of two (2 * 1/2 = 1): 49, so 2/49
+    pseudo-rows; means 1 and 2 vary by 0.5, below the noise: no class offset (an infinite count)."""
+    keys = [("x", "a"), ("x", "a"), ("x", "b"), ("x", "b")]
+    apart = np.array([0.0, 2.0, 10.0, 12.0])
+    assert empirical_kappa(keys, apart, 0.0) == pytest.approx([0.0, 2 / 49])
+    assert empirical_kappa(keys, apart, 3.0) == pytest.approx([3.0, 3.0])  # never below the floor
+    close = np.array([0.0, 2.0, 1.0, 3.0])
+    assert empirical_kappa(keys, close, 3.0)[1] == math.inf
+    # an infinite count gives every row its parent's leave-one-out mean: here the mean of the other three
+    off = hierarchical_offsets(keys, close, 3.0, empirical=True)
+    assert off == pytest.approx([(2 + 1 + 3) / 3, (0 + 1 + 3) / 3, (0 + 2 + 3) / 3, (0 + 2 + 1) / 3])
