@@ -333,7 +333,9 @@ class FieldModel:
         H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
         d = B.shape[1]
         m = max(0, min_rows - n)
-        labels = [str(x) for x in groups] if groups is not None else [f"row:{i}" for i in range(n)]
+        # each row's recording (a row without one is its own)
+        labels = [f"rec:{x}" if x is not None else f"row:{i}" for i, x in enumerate(groups)] if groups is not None \
+            else [f"row:{i}" for i in range(n)]
         fields = []
         for j in range(d):
             bj, hj = B[:, j], H[:, j]
@@ -360,8 +362,8 @@ class FieldModel:
         members: dict = defaultdict(list)
         for i, lab in enumerate(labels):
             members[lab].append(i)
-        return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)},
-                   {i: np.array(members[lab]) for i, lab in enumerate(labels)})
+        arrays = {lab: np.array(idx) for lab, idx in members.items()}  # one array per recording, shared by its rows
+        return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)}, {i: arrays[lab] for i, lab in enumerate(labels)})
 
     def prepare(self, rid: str | None, bounds: list | None = None) -> "RowDraw":
         """The maps (without the answers of the row's recording, its own included, within the row's
