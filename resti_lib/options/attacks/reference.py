@@ -109,6 +109,7 @@ def majority_label(batch: Batch, train: list, test: list, key_of_row: Callable[[
 
 # ------------------------------------------------------------------------------------ population features
 
+POPULATION_BLOCK = 256  # rows whose (rows, reference) matrices are held at once (memory, not results)
 POPULATION_FEATURES = ("answer_quantile", "candidate_quantile", "answer_density", "candidate_density",
                        "density_ratio", "answer_z")
 
@@ -137,9 +138,6 @@ def population_features(batch: Batch, values: list, group_of: list, reference: n
         cands = X[ref].ravel()
         seq_a, seq_c = seq[ref], np.repeat(seq[ref], 5)
         h = bandwidth(X.ravel())
-        Ma = (seq[:, None] != seq_a[None, :]).astype(float)            # (G, Ra): other recordings only
-        Mc = (seq[:, None] != seq_c[None, :]).astype(float)            # (G, Rc)
-        na, nc = Ma.sum(1), Mc.sum(1)
         # the reference answers' mean and spread without the row's recording, from per-recording sums
         codes, inv = np.unique(np.concatenate([seq_a, seq]).astype(str), return_inverse=True)
         own = inv[len(ans):]
@@ -149,16 +147,23 @@ def population_features(batch: Batch, values: list, group_of: list, reference: n
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = s1 / (len(ans) - n_own)
             sd = np.sqrt(np.maximum(s2 / (len(ans) - n_own) - mean ** 2, 0.0))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for k in range(5):
-                x = X[:, k]
-                da = x[:, None] - ans[None, :]
-                dc = x[:, None] - cands[None, :]
-                qa = (((da > 0) + 0.5 * (da == 0)) * Ma).sum(1) / na
-                qc = (((dc > 0) + 0.5 * (dc == 0)) * Mc).sum(1) / nc
-                fa = np.log((np.exp(-0.5 * (da / h) ** 2) * Ma).sum(1) / na + 1e-12)
-                fc = np.log((np.exp(-0.5 * (dc / h) ** 2) * Mc).sum(1) / nc + 1e-12)
-                feats = np.column_stack([qa, qc, fa, fc, fa - fc, (x - mean) / np.maximum(sd, h)])
-                feats[na == 0] = np.nan
-                out[np.array(idx) * 5 + k] = feats
+        rows = np.array(idx)
+        # rows in blocks: the (rows, reference) matrices of a block, never of the whole group at once
+        for lo in range(0, len(idx), POPULATION_BLOCK):
+            b = slice(lo, lo + POPULATION_BLOCK)
+            Ma = (seq[b, None] != seq_a[None, :]).astype(float)            # (B, Ra): other recordings only
+            Mc = (seq[b, None] != seq_c[None, :]).astype(float)            # (B, Rc)
+            na, nc = Ma.sum(1), Mc.sum(1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                for k in range(5):
+                    x = X[b, k]
+                    da = x[:, None] - ans[None, :]
+                    dc = x[:, None] - cands[None, :]
+                    qa = (((da > 0) + 0.5 * (da == 0)) * Ma).sum(1) / na
+                    qc = (((dc > 0) + 0.5 * (dc == 0)) * Mc).sum(1) / nc
+                    fa = np.log((np.exp(-0.5 * (da / h) ** 2) * Ma).sum(1) / na + 1e-12)
+                    fc = np.log((np.exp(-0.5 * (dc / h) ** 2) * Mc).sum(1) / nc + 1e-12)
+                    feats = np.column_stack([qa, qc, fa, fc, fa - fc, (x - mean[b]) / np.maximum(sd[b], h)])
+                    feats[na == 0] = np.nan
+                    out[rows[b] * 5 + k] = feats
     return out
