@@ -110,14 +110,16 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
 
     Why: the distractors of one row are drawn from a density that holds every other recording's answers,
     so a kernel much narrower than the spacing of independent answers leaves a bump at each answer: the
-    distractors of the other rows then sit where this row's answer is (an echo) and a reader holding the
-    release finds the answer where the candidates of other recordings outnumber their answers. The
-    count that best predicts held-out recordings is as wide as the answers' independence allows (several
-    answers of one recording, the same car asked twice, are one piece of evidence), and no wider: a
-    wider kernel spreads the distractors where no answer is. Cost: O(n * min(n, KNN_EVAL_ROWS)) per count."""
+    distractors of the other rows then sit where this row's answer is (an echo), and a reader holding the
+    release finds the answer where the candidates of other recordings outnumber their answers. A wider
+    kernel spreads the distractors where no answer is. The count that best predicts held-out recordings
+    (several answers of one recording, the same car asked twice, count as one piece of evidence) is the
+    likelihood's compromise; it is not the echo's: a population of sharp modes (parked and driving cars)
+    keeps narrow kernels, and their echo. Cost: O(n * min(n, KNN_EVAL_ROWS)) per count."""
     b = np.asarray(b, float)
     n = b.size
     g = np.arange(n) if groups is None else np.asarray([str(x) for x in groups], dtype=object)
+    k_max = max(int(k), min(int(k_max), n))  # a count beyond the values is the widest there is
     ladder = []
     kk = float(k)
     while int(round(kk)) <= k_max:
