@@ -86,3 +86,29 @@ def test_class_offsets_shrink_by_the_data_own_between_class_variance():
     # an infinite count gives every row its parent's leave-one-out mean: here the mean of the other three
     off = hierarchical_offsets(keys, close, 3.0, empirical=True)
     assert off == pytest.approx([(2 + 1 + 3) / 3, (0 + 1 + 3) / 3, (0 + 2 + 3) / 3, (0 + 2 + 1) / 3])
+
+
+def _echo_by_hand(b, k):
+    """Median over the values of an answer's own kernel at the answer over the other values' kernels there
+    (each value its own recording), by a double loop."""
+    b = [float(x) for x in b]
+    h = [sorted(abs(x - y) for y in b if y != x)[k - 1] for x in b]
+    ratios = []
+    for i, x in enumerate(b):
+        others = sum(math.exp(-0.5 * ((x - b[j]) / h[j]) ** 2) / h[j] for j in range(len(b)) if j != i)
+        ratios.append((1.0 / h[i]) / others)
+    return float(np.median(ratios))
+
+
+def test_the_bandwidth_widens_until_an_answer_barely_echoes():
+    """Two tight modes of twenty answers each (one per recording, 0.0105 apart within a mode, the modes 3
+    apart). The likelihood keeps kernels six answers wide (median echo 0.16); with an echo bound of 0.08 the
+    count is the first at least that wide whose median echo, summed here kernel by kernel, is at most 0.08."""
+    b = np.concatenate([np.linspace(-0.1, 0.1, 20), 3.0 + np.linspace(-0.1, 0.1, 20)])
+    ladder = [4, 6, 9, 14, 20, 30, 32]
+    lcv = select_knn(b, 1e-6, None, 4, 32)
+    echo = {k: _echo_by_hand(b, k) for k in ladder}
+    wider = [k for k in ladder if k >= lcv]
+    expected = next(k for k in wider if echo[k] <= 0.08)
+    assert expected > lcv and echo[lcv] > 0.08, (lcv, echo)
+    assert select_knn(b, 1e-6, None, 4, 32, max_echo=0.08) == expected

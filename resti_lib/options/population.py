@@ -103,10 +103,14 @@ KNN_STEP = 1.5        # the neighbour counts tried by select_knn: k, 1.5 k, 2.25
 KNN_EVAL_ROWS = 512   # held-out answers scored per count (evenly spaced in value order beyond that)
 
 
-def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192) -> int:
+def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192,
+               max_echo: float = 0.0) -> int:
     """The neighbour count of the adaptive bandwidth, among ``k``, ``k * KNN_STEP``, ... ``k_max``, whose
     density of the other recordings' answers gives each recording's answers (``groups``: one label per
-    value; None: each value its own) the highest mean log density.
+    value; None: each value its own) the highest mean log density; with ``max_echo`` above 0, the
+    smallest count at least that wide whose median *echo* is at most ``max_echo`` (the least echo when
+    none is): an answer's own kernel at the answer over the other recordings' kernels there, the share
+    by which the other rows' distractors outnumber the answers at this answer.
 
     Why: the distractors of one row are drawn from a density that holds every other recording's answers,
     so a kernel much narrower than the spacing of independent answers leaves a bump at each answer: the
@@ -115,7 +119,8 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
     kernel spreads the distractors where no answer is. The count that best predicts held-out recordings
     (several answers of one recording, the same car asked twice, count as one piece of evidence) is the
     likelihood's compromise; it is not the echo's: a population of sharp modes (parked and driving cars)
-    keeps narrow kernels, and their echo. Cost: O(n * min(n, KNN_EVAL_ROWS)) per count."""
+    keeps narrow kernels, and their echo, unless ``max_echo`` bounds it. Cost: O(n * min(n, KNN_EVAL_ROWS))
+    per count."""
     b = np.asarray(b, float)
     n = b.size
     g = np.arange(n) if groups is None else np.asarray([str(x) for x in groups], dtype=object)
@@ -139,12 +144,17 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
     span = float(b.max() - b.min()) or 1.0
     floor = 1e-3 / span                                    # a lone answer costs a bounded penalty
     best, best_score = int(k), -np.inf
+    echo = {}
     for kk in ladder:
         h = _bandwidths(b, np.broadcast_to(half, b.shape), kk, bw, max_distinct)
         dens = ((np.exp(-0.5 * ((b[ev][:, None] - b[None, :]) / h[None, :]) ** 2) / h[None, :]) * other).sum(axis=1)
         score = float(np.mean(np.log(dens / (n_other * math.sqrt(2.0 * math.pi)) + floor)))
+        echo[kk] = float(np.median((1.0 / h[ev]) / np.maximum(dens, 1e-300)))
         if score > best_score + 1e-9:
             best, best_score = kk, score
+    if max_echo > 0:
+        wider = [kk for kk in ladder if kk >= best]
+        return next((kk for kk in wider if echo[kk] <= max_echo), min(wider, key=lambda kk: (echo[kk], kk)))
     return best
 
 
@@ -169,20 +179,21 @@ class Marginal:
 
     @classmethod
     def fit(cls, b, half_cell, *, k: int = 4, bw: float = 1.0, grid: int = 2048, max_distinct: int = 8192,
-            k_max: int = 0, groups=None) -> "Marginal":
+            k_max: int = 0, groups=None, max_echo: float = 0.0) -> "Marginal":
         """Fit on base values ``b`` (one per row) with ``half_cell`` (scalar or per row) the half
         width of each value's printed rounding cell in base space (the smallest bandwidth).
 
         ``k_max`` above ``k``: the neighbour count of the bandwidth is chosen among ``k`` .. ``k_max``
         (:func:`select_knn`) as the one whose density best predicts the answers of each recording
-        (``groups``, one label per value) from the other recordings."""
+        (``groups``, one label per value) from the other recordings, widened until its echo is at most
+        ``max_echo`` (0: no bound)."""
         b = np.asarray(b, dtype=float)
         if b.size == 0 or not np.all(np.isfinite(b)):
             raise ValueError("a marginal needs finite values")
         half = np.broadcast_to(np.asarray(half_cell, dtype=float), b.shape)
         half = np.maximum(half, 1e-9)
         if k_max > k:
-            k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct)
+            k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct, max_echo=max_echo)
         h = _bandwidths(b, half, k, bw, max_distinct)
         lo, hi = float((b - 6.0 * h).min()), float((b + 6.0 * h).max())
         g = np.linspace(lo, hi, grid)
@@ -318,7 +329,7 @@ class FieldModel:
     @classmethod
     def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
             min_rows: int = 8, prior_sd=0.5, prior_center=None, max_knn: int = 0,
-            groups: list | None = None) -> "FieldModel":
+            groups: list | None = None, max_echo: float = 0.0) -> "FieldModel":
         """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
         ``H`` and covariates ``W`` (n, k).
 
@@ -329,7 +340,8 @@ class FieldModel:
 
         ``groups``: each row's recording. A row's distractors are then drawn without its recording's
         answers (:meth:`prepare`), and ``max_knn`` above ``knn`` chooses each field's bandwidth by how
-        well the other recordings predict a recording's answers (:func:`select_knn`)."""
+        well the other recordings predict a recording's answers, widened until its echo is at most
+        ``max_echo`` (:func:`select_knn`)."""
         n = len(rids)
         B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
         H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
@@ -347,7 +359,8 @@ class FieldModel:
                 pseudo = centre + sd * norm_quantiles(m)
                 bj = np.concatenate([bj, pseudo])
                 hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
-            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)]))
+            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)],
+                                       max_echo=max_echo))
         covs, cs = [], np.zeros((n, 0))
         if W is not None and W.size and n >= min_rows:
             W = np.asarray(W, float).reshape(n, -1)

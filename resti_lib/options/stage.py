@@ -221,12 +221,13 @@ class Stage:
     def fit_fields(self, plans: list, B, H, W, **kw) -> FieldModel:
         """The population model of one group's answers (``B``, half cells ``H``, covariates ``W``) with the
         model params: bandwidth neighbours (``knn``, chosen up to ``max_knn`` by how well the other
-        recordings predict each recording's answers), copula shrinkage, the smallest group; each row's
+        recordings predict each recording's answers, widened until the echo is at most ``max_echo``),
+        copula shrinkage, the smallest group; each row's
         distractors drawn without its recording's answers (the recording: the row's source sequence)."""
         return FieldModel.fit([p.rid for p in plans], B, H, W, knn=int(self.model["knn"]),
                               max_knn=int(self.model.get("max_knn") or 0), shrink=self.model["copula_shrink"],
                               min_rows=int(self.model["min_group"]), groups=[p.spec.obs.sequence for p in plans],
-                              **kw)
+                              max_echo=float(self.model.get("max_echo") or 0.0), **kw)
 
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
               **kw) -> np.ndarray:
