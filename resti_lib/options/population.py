@@ -507,12 +507,14 @@ def empirical_kappa(keys: list[tuple], values: np.ndarray, floor: float) -> list
             continue
         s2w = ss_w / df_w / d
         tau2 = dev / df_b - s2w * noise / n_cls
-        out.append(float(floor) if tau2 <= 0 and s2w == 0 else
-                   max(float(floor), s2w / tau2) if tau2 > 0 else math.inf)
+        if tau2 > 0:
+            out.append(max(float(floor), s2w / tau2))
+        else:  # the means differ by no more than their noise (identical values: nothing to shrink)
+            out.append(math.inf if s2w > 0 else float(floor))
     return out
 
 
-def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa, *, groups: list | None = None,
+def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa: float, *, groups: list | None = None,
                          extra: tuple | None = None, empirical: bool = False) -> np.ndarray:
     """Leave-one-out means of ``b0`` per nested key, each level shrunk towards its parent.
 
@@ -524,8 +526,8 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa, *, groups: li
     so an attacker who knows the typical value of a class learns nothing the distractors do not
     share, and repeated answers do not pull their class's offset onto themselves.
 
-    ``kappa``: pseudo-rows per level (one number for every level, or one per level); ``empirical``:
-    ``kappa`` is the floor of counts estimated from the entries (:func:`empirical_kappa`).
+    ``kappa``: pseudo-rows at every level; ``empirical``: ``kappa`` is the floor of counts estimated
+    per level from the entries (:func:`empirical_kappa`).
 
     ``extra``: ``(keys, values, groups)`` of further evidence that enters the means but gets no
     offset (the box edges of the same classes asked in another task); an entry of the row's own
@@ -562,7 +564,7 @@ def hierarchical_offsets(keys: list[tuple], b0: np.ndarray, kappa, *, groups: li
     if empirical:
         kappas = empirical_kappa(ukeys + xkeys, np.concatenate([ub, xb]) if len(xb) else ub, float(kappa))
     else:
-        kappas = [float(x) for x in kappa] if np.ndim(kappa) else [float(kappa)] * depth
+        kappas = [float(kappa)] * depth
     sums: list[dict] = []
     for lv in range(1, depth + 1):
         acc: dict = defaultdict(lambda: [np.zeros(ub.shape[1]), 0])
