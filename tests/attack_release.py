@@ -355,3 +355,35 @@ def recording_rows(plant: str | None = None, seed: int = 0) -> list[dict]:
     for r in range(N_RECORDINGS):
         rows += _converse_recording(rng, r, plant)
     return rows
+
+
+# ------------------------------------------------------------------------------------ echo
+# A release whose distractors echo the answers: each scene's four distractors are drawn around other
+# scenes' answers (a narrow kernel density of the other answers, as a distractor generator fitted on the
+# answers draws them), so every answer recurs, slightly moved, among the other scenes' candidates. In
+# the clean control the distractors are drawn from the answers' own distribution instead.
+
+ECHO_SCENES = 250
+ECHO_LOG_SD = 0.005   # log spread of a distractor around the answer it echoes (the answers' log spread: 0.5)
+
+
+def echo_rows(echo: bool = True, seed: int = 0, n: int = ECHO_SCENES) -> list[dict]:
+    """One average-speed question per ScanNet scene, its answer drawn from one log-normal; distractors
+    drawn around the other scenes' answers (``echo``) or from that log-normal (clean). Printed to the
+    millimetre per second, so a distractor rarely prints as the answer it echoes."""
+    rng = np.random.default_rng(seed)
+    answers = np.exp(rng.normal(np.log(0.3), 0.5, n))
+    rows = []
+    def draw(others: np.ndarray) -> str:
+        x = others[rng.integers(len(others))] * np.exp(rng.normal(0, ECHO_LOG_SD)) if echo else \
+            np.exp(rng.normal(np.log(0.3), 0.5))
+        return V.format_scalar(float(x), "m/s", 3)
+
+    for r in range(n):
+        others = np.delete(answers, r)
+        strings = _distinct(lambda others=others: draw(others), first=V.format_scalar(float(answers[r]), "m/s", 3))
+        t0 = float(rng.integers(0, 30))
+        cands, ans = _letters(strings, 0, rng)
+        rows.append(_row("Speed & Acceleration", "ScanNet", f"scene{r:04d}_00.mp4", _window_q("speed", t0, t0 + 5),
+                         cands, ans, 30000 + r, t0, t0 + 5))
+    return rows

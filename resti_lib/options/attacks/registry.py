@@ -14,7 +14,8 @@ FAMILIES = {
     "option": "option-only rules on the candidate values",
     "format": "formatting tells of the printed candidates (and their tie sets)",
     "typicality": "field typicality against the other rows' answers",
-    "prior": "priors over the other recordings of the release: string and field rates, nearest candidate sets",
+    "prior": "priors over the other recordings of the release: string and field rates, nearest candidate sets, the "
+             "echo of the answers in the other recordings' distractors",
     "question": "question-aware rules (window, premise pose, direction of travel, question type and noun)",
     "cross_row": "same-video / same-sequence cross-row reveals",
     "relation": "physical relations across the rows of one recording (rates, paths, box edges, poses, turns, "
