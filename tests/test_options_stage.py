@@ -1060,3 +1060,26 @@ def test_a_slot_answering_over_a_fifth_of_one_kind_of_question_is_structural_the
     instant = [r for rid, r in kept.items() if int(rid[1:]) < 10]
     assert len(instant) == 7 and sum(r["Candidates"][r["Answer"]] == "0.00m/s" for r in instant) == 1
     assert all(f"r{i}" in kept for i in range(10, 60))
+
+
+def test_a_floor_slot_is_the_only_candidate_printed_at_the_floor():
+    """Where the printing floor (0.01 m) is a fixed slot, no row draws a candidate printed there: the
+    floor is offered exactly as the slot design says, by the 8 floor answers and 4 carriers per floor
+    answer, 40 rows of 80 (by hand). Drawn floor values beside the slot (old code: 58 rows offered it
+    here) crowd the bottom of every set with strings that are rarely the answer, and a carrier row
+    whose drawn candidate collides with its slot is redrawn, so its answer sits lower than its
+    distractors more often than by chance."""
+    rng = np.random.default_rng(3)
+    rows, floor = [], set()
+    for i in range(80):
+        x = 0.01 if i % 10 == 0 else max(0.02, float(np.exp(rng.normal(math.log(0.05), 0.6))))
+        if i % 10 == 0:
+            floor.add(f"r{i}")
+        q = (f"What is the minimum surface-to-surface distance between the chair number {i} and the table "
+             f"next to it? (unit: m)")
+        rows.append(_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(x, "m"),
+                         video=f"scene{i:04d}_00.mp4", t0=3.0, t1=3.0))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+    offered = [r for r in out if "0.01m" in r["Candidates"].values()]
+    assert {r["ReSTI ID"] for r in offered if r["Candidates"][r["Answer"]] == "0.01m"} == floor
+    assert len(offered) == 8 * (1 + 4)

@@ -85,6 +85,8 @@ class ScalarKind(KindBuilder):
         slots = slot_answers([p.spec for p in ps])
         carried: dict[str, list] = defaultdict(list)
         first: set = set()
+        # a floor value is offered as its slot only: no row of the subgroup draws a candidate printed there
+        info["floor_slot"] = sorted({sub for (sub, value) in slots if value > 0}, key=str)
         for (sub, value), idx in slots.items():
             answers = {ps[i].rid for i in idx}
             # a zero is carried by moving rows; the floor by any other row of its subgroup (the zeros too)
@@ -117,8 +119,10 @@ class ScalarKind(KindBuilder):
             off = gm.info["offset"][rid] if rid is not None else mean_offset(gm, spec)
         else:
             off = gm.info["offset"][p.rid]
-        # what the row can print: above zero (half a printed unit), below the physical bound
-        bounds = [(math.log(0.5 * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
+        # what the row can print: above zero (half a printed unit; above the floor, one and a half, where the
+        # floor is a slot), below the physical bound
+        low = 1.5 if slot_subgroup(spec) in gm.info.get("floor_slot", ()) else 0.5
+        bounds = [(math.log(low * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
         if p.answer_is_fixed:
             b = st.draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
         elif st.free_draw:
