@@ -844,6 +844,16 @@ def test_yaw_tilt_heading_and_lean_by_hand():
             assert from_yaw_tilt(yaw_tilt(R, up), up) == pytest.approx(R, abs=1e-12)
 
 
+def _distance_rows(values: list) -> tuple[list, set]:
+    """One surface-to-surface distance question per value, each in its own scene, and the ids of the
+    rows whose answer prints at the floor (0.01 m)."""
+    rows = [_row(i, "Dimensional Measurement", "ScanNet",
+                 f"What is the minimum surface-to-surface distance between the chair number {i} and the table "
+                 "next to it? (unit: m)", V.format_scalar(x, "m"), video=f"scene{i:04d}_00.mp4", t0=3.0, t1=3.0)
+            for i, x in enumerate(values)]
+    return rows, {f"r{i}" for i, x in enumerate(values) if V.format_scalar(x, "m") == "0.01m"}
+
+
 def test_answers_at_the_printing_floor_are_slots_other_rows_carry():
     """Objects that touch print 0.01 m apart: nothing prints below that, so a floor answer drawn like
     the others is always the smallest candidate. It is a fixed slot instead, carried as a distractor by
@@ -852,15 +862,8 @@ def test_answers_at_the_printing_floor_are_slots_other_rows_carry():
     them: the structural table names it and the evaluation subset keeps floor answers at one in five
     (11 of the 45 others / 4), dropping 4 as ``zero_slot``."""
     rng = np.random.default_rng(8)
-    rows, floor = [], set()
-    for i in range(60):
-        x = 0.01 if i % 4 == 0 else float(np.exp(rng.normal(math.log(0.4), 0.8))) + 0.02
-        if i % 4 == 0:
-            floor.add(f"r{i}")
-        q = (f"What is the minimum surface-to-surface distance between the chair number {i} and the table "
-             f"next to it? (unit: m)")
-        rows.append(_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(x, "m"),
-                         video=f"scene{i:04d}_00.mp4", t0=3.0, t1=3.0))
+    rows, floor = _distance_rows([0.01 if i % 4 == 0 else float(np.exp(rng.normal(math.log(0.4), 0.8))) + 0.02
+                                  for i in range(60)])
     out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     offered = [r for r in out if "0.01m" in r["Candidates"].values()]
     answered = {r["ReSTI ID"] for r in offered if r["Candidates"][r["Answer"]] == "0.01m"}
@@ -1070,15 +1073,8 @@ def test_a_floor_slot_is_the_only_candidate_printed_at_the_floor():
     whose drawn candidate collides with its slot is redrawn, so its answer sits lower than its
     distractors more often than by chance."""
     rng = np.random.default_rng(3)
-    rows, floor = [], set()
-    for i in range(80):
-        x = 0.01 if i % 10 == 0 else max(0.02, float(np.exp(rng.normal(math.log(0.05), 0.6))))
-        if i % 10 == 0:
-            floor.add(f"r{i}")
-        q = (f"What is the minimum surface-to-surface distance between the chair number {i} and the table "
-             f"next to it? (unit: m)")
-        rows.append(_row(i, "Dimensional Measurement", "ScanNet", q, V.format_scalar(x, "m"),
-                         video=f"scene{i:04d}_00.mp4", t0=3.0, t1=3.0))
+    rows, floor = _distance_rows([0.01 if i % 10 == 0 else max(0.02, float(np.exp(rng.normal(math.log(0.05), 0.6))))
+                                  for i in range(80)])
     out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
     offered = [r for r in out if "0.01m" in r["Candidates"].values()]
     assert {r["ReSTI ID"] for r in offered if r["Candidates"][r["Answer"]] == "0.01m"} == floor
