@@ -158,12 +158,20 @@ def _field_density(batch: Batch):
                    lambda train, test: dict(zip(("density", "ratio"), _field_densities(batch, train, test))))
 
 
-def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
-    """Per test row: rank votes and relative-value closeness of its candidates from the answers of its five
-    nearest training rows (sorted candidate values; same cell and question type)."""
+def _scaled(batch: Batch) -> tuple[list, object]:
+    """Each row's candidate values on their scale (:func:`value_scale`; None for other kinds), and the
+    key of the rows one rule compares: task, source and question type, for rows whose values are all
+    finite (None otherwise)."""
     vals = batch.memo("prior_values", lambda: [value_scale(p) for p in batch.rows])
     key = lambda i: (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i])) \
         if vals[i] is not None and all(np.isfinite(list(vals[i].values()))) else None
+    return vals, key
+
+
+def _nearest_sets(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+    """Per test row: rank votes and relative-value closeness of its candidates from the answers of its five
+    nearest training rows (sorted candidate values; same cell and question type)."""
+    vals, key = _scaled(batch)
     by_rank, by_value = {}, {}
     pool: dict = {}
     for i in train:
@@ -216,9 +224,7 @@ def _echo_scores(batch: Batch) -> Directional:
     """Per width of :data:`ECHO_WIDTHS`: in each group of rows of one cell and question type, the candidate
     where the answers of the earlier recordings are least dense relative to the candidates of every other
     recording (:func:`_answer_echo`)."""
-    vals = batch.memo("prior_values", lambda: [value_scale(p) for p in batch.rows])
-    key = lambda i: (batch.rows[i].task, batch.rows[i].source, question_kind(batch.obs[i])) \
-        if vals[i] is not None and all(np.isfinite(list(vals[i].values()))) else None
+    vals, key = _scaled(batch)
     out = Directional({f"width {w:g}": [None] * len(batch) for w in ECHO_WIDTHS})
     for idx in batch.groups(key).values():
         X = np.array([[vals[i][k] for k in LETTERS] for i in idx])
