@@ -426,7 +426,14 @@ class RowDraw:
         [(lo, hi), ...]; ``prior``: no designated answer (fixed-slot rows)."""
         d = len(self.maps)
         K = batch or 1
-        if prior:
+        if prior and lattice is not None and d == 1:
+            # a set of the lattice from a random start: the n values are distributed as an answer and the
+            # other candidates of a row that has one (a row whose answer is a fixed slot draws like the others)
+            z_v = rng.standard_normal((K, 1))
+            z = np.concatenate([z_v[:, None, :], lattice_scores(z_v, n - 1, lattice, rng)], axis=1) if n > 1 \
+                else z_v[:, None, :]
+            self.last_za = None
+        elif prior:
             c = math.sqrt(max(1.0 - s * s, 1e-6)) * rng.standard_normal((K, 1, d))
             z = c + s * rng.standard_normal((K, n, d))
             self.last_za = None

@@ -124,7 +124,8 @@ class ScalarKind(KindBuilder):
         low = 1.5 if slot_subgroup(spec) in gm.info.get("floor_slot", ()) else 0.5
         bounds = [(math.log(low * spec.ulp + eps) - off, math.log(hi_b + eps) - off if math.isfinite(hi_b) else None)]
         if p.answer_is_fixed:
-            b = st.draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
+            b = st.draw(gm, rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds,
+                        lattice=gm.info.get("lattice"))[:, :, 0]
         elif st.free_draw:
             b = st.draw(gm, p.rid, [], s, rng, n=n_draw, prior=True, batch=K, bounds=bounds)[:, :, 0]
         else:
