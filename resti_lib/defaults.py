@@ -73,14 +73,14 @@ def setting(params: dict | None, key: str) -> Any:
 # ------------------------------------------------------------------------------------------ schema
 
 #: Keys whose values are integers (their defaults may be written as numbers or null).
-INTEGER_KEYS = frozenset({"seed", "world_seed", "jobs", "decimals", "knn", "max_knn", "max_tries", "min_group", "max_iter",
-                          "n_estimators", "max_depth", "folds", "rounds"})
+INTEGER_KEYS = frozenset({"seed", "world_seed", "jobs", "decimals", "knn", "max_knn", "echo_knn", "max_tries", "min_group",
+                          "max_iter", "n_estimators", "max_depth", "folds", "rounds"})
 #: Key-name rules for numbers, first match wins: (pattern on the key, low, low included, what it means
 #: [, high (included)]).
 RANGES = (
     (r"tol", 0.0, True, "a tolerance is at least 0"),
     (r"fps$", 0.0, False, "a frame rate is above 0"),
-    (r"^(seed|world_seed|decimals)$", 0.0, True, "at least 0"),
+    (r"^(seed|world_seed|decimals|echo_knn)$", 0.0, True, "at least 0"),
     (r"^jobs$", 1.0, True, "at least 1 parallel job"),
     (r"(factor|ratio|shrink)$", 0.0, False, "a factor is above 0"),
     (r"^width$", 0.0, True, "a share of a stratum, from 0 to 1", 1.0),

@@ -25,6 +25,12 @@ anchor ``c ~ N(0, (1 - s²) I)`` and five candidates ``z_j = c + s·e_j`` are ex
 ``N(0, I)``. Given the answer's ``z_a``, the anchor is ``N((1 - s²) z_a, s²(1 - s²) I)`` and the
 other four follow.
 
+Every row's distractors are drawn from the other recordings' answers, so each answer leaves an *echo*:
+the other rows' distractors crowd where it is while no other answer need be there, and a reader holding the
+release finds the answer where the other recordings' candidates outnumber their answers. The kernels'
+width decides it: :func:`echo_balanced` simulates the candidate sets of a group and widens the bandwidth
+where the likelihood's leaves the answer's echo off its chance rank.
+
 Coarsely printed magnitudes (a group whose median answer is under ``model.lattice.below_units``
 printed units, such as speeds of a hand-held camera at 0.01 m/s) and narrow populations (the middle
 half of the answers spans under ``model.lattice.below_floors`` separation floors) are drawn on a
@@ -43,6 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import ndtr, ndtri
+
+from ..rng import stable_seed
 
 _P_MIN = 1e-12
 
@@ -103,24 +111,13 @@ KNN_STEP = 1.5        # the neighbour counts tried by select_knn: k, 1.5 k, 2.25
 KNN_EVAL_ROWS = 512   # held-out answers scored per count (evenly spaced in value order beyond that)
 
 
-def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192,
-               max_echo: float = 0.0) -> int:
+def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192) -> int:
     """The neighbour count of the adaptive bandwidth, among ``k``, ``k * KNN_STEP``, ... ``k_max``, whose
     density of the other recordings' answers gives each recording's answers (``groups``: one label per
-    value; None: each value its own) the highest mean log density; with ``max_echo`` above 0, the
-    smallest count at least that wide whose median *echo* is at most ``max_echo`` (the least echo when
-    none is): an answer's own kernel at the answer over the other recordings' kernels there, the share
-    by which the other rows' distractors outnumber the answers at this answer.
-
-    Why: the distractors of one row are drawn from a density that holds every other recording's answers,
-    so a kernel much narrower than the spacing of independent answers leaves a bump at each answer: the
-    distractors of the other rows then sit where this row's answer is (an echo), and a reader holding the
-    release finds the answer where the candidates of other recordings outnumber their answers. A wider
-    kernel spreads the distractors where no answer is. The count that best predicts held-out recordings
-    (several answers of one recording, the same car asked twice, count as one piece of evidence) is the
-    likelihood's compromise; it is not the echo's: a population of sharp modes (parked and driving cars)
-    keeps narrow kernels, and their echo, unless ``max_echo`` bounds it. Cost: O(n * min(n, KNN_EVAL_ROWS))
-    per count."""
+    value; None: each value its own) the highest mean log density. Several answers of one recording (the
+    same car asked twice) count as one piece of evidence. The likelihood does not see the echo of each
+    answer in the other rows' distractors; :func:`echo_balanced` widens against it. Cost:
+    O(n * min(n, KNN_EVAL_ROWS)) per count."""
     b = np.asarray(b, float)
     n = b.size
     g = np.arange(n) if groups is None else np.asarray([str(x) for x in groups], dtype=object)
@@ -144,17 +141,12 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
     span = float(b.max() - b.min()) or 1.0
     floor = 1e-3 / span                                    # a lone answer costs a bounded penalty
     best, best_score = int(k), -np.inf
-    echo = {}
     for kk in ladder:
         h = _bandwidths(b, np.broadcast_to(half, b.shape), kk, bw, max_distinct)
         dens = ((np.exp(-0.5 * ((b[ev][:, None] - b[None, :]) / h[None, :]) ** 2) / h[None, :]) * other).sum(axis=1)
         score = float(np.mean(np.log(dens / (n_other * math.sqrt(2.0 * math.pi)) + floor)))
-        echo[kk] = float(np.median((1.0 / h[ev]) / np.maximum(dens, 1e-300)))
         if score > best_score + 1e-9:
             best, best_score = kk, score
-    if max_echo > 0:
-        wider = [kk for kk in ladder if kk >= best]
-        return next((kk for kk in wider if echo[kk] <= max_echo), min(wider, key=lambda kk: (echo[kk], kk)))
     return best
 
 
@@ -179,21 +171,20 @@ class Marginal:
 
     @classmethod
     def fit(cls, b, half_cell, *, k: int = 4, bw: float = 1.0, grid: int = 2048, max_distinct: int = 8192,
-            k_max: int = 0, groups=None, max_echo: float = 0.0) -> "Marginal":
+            k_max: int = 0, groups=None) -> "Marginal":
         """Fit on base values ``b`` (one per row) with ``half_cell`` (scalar or per row) the half
         width of each value's printed rounding cell in base space (the smallest bandwidth).
 
         ``k_max`` above ``k``: the neighbour count of the bandwidth is chosen among ``k`` .. ``k_max``
         (:func:`select_knn`) as the one whose density best predicts the answers of each recording
-        (``groups``, one label per value) from the other recordings, widened until its echo is at most
-        ``max_echo`` (0: no bound)."""
+        (``groups``, one label per value) from the other recordings."""
         b = np.asarray(b, dtype=float)
         if b.size == 0 or not np.all(np.isfinite(b)):
             raise ValueError("a marginal needs finite values")
         half = np.broadcast_to(np.asarray(half_cell, dtype=float), b.shape)
         half = np.maximum(half, 1e-9)
         if k_max > k:
-            k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct, max_echo=max_echo)
+            k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct)
         h = _bandwidths(b, half, k, bw, max_distinct)
         lo, hi = float((b - 6.0 * h).min()), float((b + 6.0 * h).max())
         g = np.linspace(lo, hi, grid)
@@ -325,11 +316,12 @@ class FieldModel:
     cov_scores: np.ndarray  # (n, k) covariate scores of every member row
     index: dict  # rid -> member position
     recording: dict = field(default_factory=dict)  # member position -> positions of its recording's rows
+    echo: dict = field(default_factory=dict)  # the echo balance of the bandwidth (:func:`echo_balanced`), if run
 
     @classmethod
     def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
             min_rows: int = 8, prior_sd=0.5, prior_center=None, max_knn: int = 0,
-            groups: list | None = None, max_echo: float = 0.0) -> "FieldModel":
+            groups: list | None = None, echo: dict | None = None) -> "FieldModel":
         """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
         ``H`` and covariates ``W`` (n, k).
 
@@ -340,9 +332,13 @@ class FieldModel:
 
         ``groups``: each row's recording. A row's distractors are then drawn without its recording's
         answers (:meth:`prepare`), and ``max_knn`` above ``knn`` chooses each field's bandwidth by how
-        well the other recordings predict a recording's answers, widened until its echo is at most
-        ``max_echo`` (:func:`select_knn`)."""
+        well the other recordings predict a recording's answers (:func:`select_knn`). ``echo`` (a one-field
+        group of at least :data:`ECHO_MIN_ROWS` rows): that count is widened while it balances the echo
+        better (:func:`echo_balanced`)."""
         n = len(rids)
+        if echo and n >= ECHO_MIN_ROWS and np.asarray(B).reshape(n, -1).shape[1] == 1 and groups is not None:
+            return echo_balanced(cls, rids, B, H, W, knn=knn, shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
+                                 prior_center=prior_center, groups=groups, echo=echo, max_knn=max_knn)
         B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
         H = np.asarray(H, float).reshape(B.shape) if n else np.zeros(B.shape)
         d = B.shape[1]
@@ -359,8 +355,7 @@ class FieldModel:
                 pseudo = centre + sd * norm_quantiles(m)
                 bj = np.concatenate([bj, pseudo])
                 hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
-            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)],
-                                       max_echo=max_echo))
+            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)]))
         covs, cs = [], np.zeros((n, 0))
         if W is not None and W.size and n >= min_rows:
             W = np.asarray(W, float).reshape(n, -1)
@@ -394,6 +389,87 @@ class FieldModel:
         if out is not None and np.size(out) >= self.fields[0].n:  # one recording holds the group: its row alone
             out = i
         return RowDraw([f.row_map(out, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
+
+
+ECHO_MIN_ROWS = 20        # a smaller group keeps the likelihood's bandwidth
+ECHO_SIM_ROWS = 300       # rows of a group simulated per count (evenly spaced in value order beyond that)
+ECHO_SIM_REPS = 4         # simulated candidate sets per row and count
+ECHO_SIM_WIDTHS = (0.02, 0.05, 0.2)   # reader kernels, as shares of the spread of the simulated candidates
+ECHO_Z = 2.0              # the likelihood's count is kept unless its simulated echo is this many standard errors off
+
+
+def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_center, groups, echo,
+                  max_knn=0) -> "FieldModel":
+    """The model of a one-field group with the likelihood's bandwidth count (:func:`select_knn`); where the
+    candidate sets simulated from it leave the answer's echo score more than :data:`ECHO_Z` standard errors
+    from its chance rank (:func:`echo_imbalance`), widened to the count of ``echo["ladder"]`` that leaves it
+    nearest (the narrower count on a tie). Never narrower than the likelihood's count (a narrower kernel
+    prints other rows' answers as distractors more often), and not moved by differences within the
+    simulation's noise. The counts tried and their imbalance are in the model's ``echo``."""
+    first = cls.fit(rids, B, H, W, knn=knn, shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
+                    prior_center=prior_center, max_knn=max_knn, groups=groups)
+    k0 = first.fields[0].k
+    b = np.asarray(B, float).reshape(len(rids))
+    best, best_z, tried = first, echo_imbalance(first, rids, b, groups, echo), {}
+    tried[k0] = round(best_z, 3)
+    for k in (k for k in echo["ladder"] if k > k0 and tried[k0] > ECHO_Z):
+        fm = cls.fit(rids, B, H, W, knn=int(k), shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
+                     prior_center=prior_center, max_knn=0, groups=groups)
+        z = echo_imbalance(fm, rids, b, groups, echo)
+        tried[int(k)] = round(z, 3)
+        if z < best_z - 1e-9:
+            best, best_z = fm, z
+    best.echo = {"k": int(best.fields[0].k), "likelihood_k": int(k0), "imbalance": tried}
+    return best
+
+
+def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict) -> float:
+    """How far the answer's echo score sits from its chance rank in candidate sets simulated from ``fm``
+    (the stage's draw without the constraints: spread ``echo["s"]``, quantile lattice ``echo["lattice"]``),
+    in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS`.
+
+    The echo score of a candidate is the density of the other recordings' answers at it over the density of
+    their candidates (:func:`resti_lib.options.attacks.prior._answer_echo` reads it the same way, on
+    the printed values). Too narrow a kernel leaves a bump at each answer, the other rows' distractors crowd
+    there and the answer scores low; too wide a kernel spreads the distractors where no answer is and the
+    answer scores high."""
+    n = len(rids)
+    off = np.zeros(n) if echo.get("offset") is None else np.asarray(echo["offset"], float)
+    # the candidate sets are simulated from the data alone (the rows, not the option seed): the model
+    # of a group does not change with the seed the options are drawn with
+    rng = np.random.default_rng(stable_seed("echo balance", ECHO_SIM_REPS, *rids))
+    sel = np.arange(n) if n <= ECHO_SIM_ROWS else np.argsort(b, kind="stable")[
+        np.linspace(0, n - 1, ECHO_SIM_ROWS).round().astype(int)]
+    m = sel.size
+    g = np.asarray([f"rec:{x}" if x is not None else f"row:{i}" for i, x in enumerate(groups)], dtype=object)[sel]
+    other = g[:, None] != g[None, :]
+    ok = other.any(axis=1)
+    C = np.empty((ECHO_SIM_REPS, m, 5))
+    for r, i in enumerate(sel):
+        rd = fm.prepare(rids[i])
+        x = float(b[i])
+        d = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS, lattice=echo.get("lattice"))
+        C[:, r, 0] = x
+        C[:, r, 1:] = d[:, :, 0]
+    C = C + off[sel][None, :, None]
+    if echo.get("printed") is not None:  # the values a reader sees: printed, on the reader's scale
+        C = echo["printed"](C, sel)
+    z = 0.0
+    for w in ECHO_SIM_WIDTHS:
+        ranks = []
+        for c in C:
+            h = w * (float(np.std(c)) or 1.0)
+            fa = (np.exp(-0.5 * ((c[:, :, None] - c[None, None, :, 0]) / h) ** 2) * other[:, None, :]).sum(-1)
+            fc = (np.exp(-0.5 * ((c[:, :, None, None] - c[None, None, :, :]) / h) ** 2).sum(-1)
+                  * other[:, None, :]).sum(-1)
+            sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)
+            # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
+            below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
+            ranks.append(below[ok])
+        r = np.concatenate(ranks)
+        if r.size:
+            z = max(z, abs(float(r.mean()) - 2.0) / (math.sqrt(2.0) / math.sqrt(r.size / ECHO_SIM_REPS)))
+    return z
 
 
 def norm_quantiles(m: int) -> np.ndarray:

@@ -52,7 +52,7 @@ from ..rng import row_rng, stable_seed
 from .follow import FOLLOWS, box_edge_map, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
-from .population import FieldModel
+from .population import KNN_STEP, FieldModel
 from .spec import (
     Interface,
     OptionSpec,
@@ -221,13 +221,30 @@ class Stage:
     def fit_fields(self, plans: list, B, H, W, **kw) -> FieldModel:
         """The population model of one group's answers (``B``, half cells ``H``, covariates ``W``) with the
         model params: bandwidth neighbours (``knn``, chosen up to ``max_knn`` by how well the other
-        recordings predict each recording's answers, widened until the echo is at most ``max_echo``),
-        copula shrinkage, the smallest group; each row's
-        distractors drawn without its recording's answers (the recording: the row's source sequence)."""
+        recordings predict each recording's answers; ``echo``: see :meth:`echo_spec`), copula shrinkage,
+        the smallest group; each row's distractors drawn without its recording's answers (the recording:
+        the row's source sequence)."""
         return FieldModel.fit([p.rid for p in plans], B, H, W, knn=int(self.model["knn"]),
                               max_knn=int(self.model.get("max_knn") or 0), shrink=self.model["copula_shrink"],
                               min_rows=int(self.model["min_group"]), groups=[p.spec.obs.sequence for p in plans],
-                              max_echo=float(self.model.get("max_echo") or 0.0), **kw)
+                              **kw)
+
+    def echo_spec(self, lattice=None, offset=None, printed=None) -> dict | None:
+        """How a one-field group's bandwidth is widened against the echo
+        (:func:`resti_lib.options.population.echo_balanced`): the neighbour counts tried (``knn``, 1.5 ``knn``,
+        ... up to ``model.echo_knn``) and the draw simulated (the spread ``model.s``, the group's ``lattice``,
+        each row's ``offset`` back to the printed scale and ``printed``, the values a reader sees); None
+        when ``model.echo_knn`` is not above ``knn`` (the likelihood's count)."""
+        k, top = int(self.model["knn"]), int(self.model.get("echo_knn") or 0)
+        if top <= k:
+            return None
+        ladder = []
+        kk = float(k)
+        while int(round(kk)) < top:
+            ladder.append(int(round(kk)))
+            kk *= KNN_STEP
+        return {"ladder": sorted(set(ladder + [top])), "s": float(self.model["s"]), "lattice": lattice,
+                "offset": offset, "printed": printed}
 
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
               **kw) -> np.ndarray:

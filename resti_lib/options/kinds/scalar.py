@@ -74,7 +74,14 @@ class ScalarKind(KindBuilder):
             narrow = len(moving) >= int(st.model["min_group"]) and floors < float(lat.get("below_floors", 0))
             if units < float(lat["below_units"]) or narrow:
                 info["lattice"] = float(lat["width"])
-            fm = st.fit_fields(moving, b0 - off, H, W)
+            ulp = np.array([p.spec.ulp for p in moving])
+            si = np.array([p.spec.value.si_per_unit for p in moving])
+
+            def printed(c, sel):  # log rate + offset -> the printed value, on the readers' scale (SI, log)
+                x = np.maximum(np.round((np.exp(c) - eps) / ulp[sel][None, :, None]), 1.0) * ulp[sel][None, :, None]
+                return np.log(x * si[sel][None, :, None] + 1e-3)
+
+            fm = st.fit_fields(moving, b0 - off, H, W, echo=st.echo_spec(info.get("lattice"), off, printed))
         else:  # only exact zeros: distractors from a weak prior about twenty printed units
             fm = st.fit_fields([], None, None, None, prior_sd=1.0, prior_center=[math.log(20 * eps + eps)])
         gm_reuse = GroupModel("scalar", None, {})
