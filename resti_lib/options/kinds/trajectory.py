@@ -40,7 +40,7 @@ class TrajectoryKind(KindBuilder):
             H = 0.5 * st.params["separation"]["trajectory"]["min_rel_gap"] * x / (x + 0.1)
             W = np.array([[log_window(p.spec)] for p in moving])
             W = W if np.isfinite(W).all() else None
-            fm = st.fit_fields(moving, np.log(x + 0.1) - ow, H, W)
+            fm = st.fit_fields(moving, np.log(x + 0.1) - ow, H, W, echo=st.echo_spec(None, ow, _reader_scale))
         else:  # only "no significant movement": single moves of a few metres per second of window
             fm = st.fit_fields([], None, None, None, prior_sd=1.0, prior_center=[math.log(3.0)])
         carriers = slot_rows(none, [p.rid for p in moving], st.model["zero_slot_ratio"], seed=st.seed, group=g)
@@ -188,3 +188,9 @@ def traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
         return V.format_trajectory(out)
 
     return fmt
+
+
+def _reader_scale(c: np.ndarray, sel) -> np.ndarray:
+    """Log totals over the window plus the window (``log(x + 0.1)``) as readers compare them: the log of
+    the total distance (:func:`resti_lib.options.attacks.features.value_scale`)."""
+    return np.log(np.maximum(np.exp(c) - 0.1, 0.0) + 1e-3)
