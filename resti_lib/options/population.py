@@ -51,6 +51,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from ..rng import stable_seed
+from .attacks.prior import kernel_sums
 
 _P_MIN = 1e-12
 
@@ -111,6 +112,25 @@ KNN_STEP = 1.5        # the neighbour counts tried by select_knn: k, 1.5 k, 2.25
 KNN_EVAL_ROWS = 512   # held-out answers scored per count (evenly spaced in value order beyond that)
 
 
+def knn_ladder(k: int, k_max: int) -> list[int]:
+    """The neighbour counts tried: ``k``, ``k * KNN_STEP``, ... (rounded, distinct) up to ``k_max``, and ``k_max``."""
+    ladder: list[int] = []
+    kk = float(k)
+    while int(round(kk)) <= k_max:
+        if int(round(kk)) not in ladder:
+            ladder.append(int(round(kk)))
+        kk *= KNN_STEP
+    if k_max not in ladder:
+        ladder.append(int(k_max))
+    return ladder
+
+
+def recording_labels(groups, n: int) -> list[str]:
+    """Each row's recording label (``groups``; a row without one, or no ``groups``, is its own)."""
+    return [f"rec:{x}" if x is not None else f"row:{i}" for i, x in enumerate(groups)] if groups is not None \
+        else [f"row:{i}" for i in range(n)]
+
+
 def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_distinct: int = 8192) -> int:
     """The neighbour count of the adaptive bandwidth, among ``k``, ``k * KNN_STEP``, ... ``k_max``, whose
     density of the other recordings' answers gives each recording's answers (``groups``: one label per
@@ -121,15 +141,7 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
     b = np.asarray(b, float)
     n = b.size
     g = np.arange(n) if groups is None else np.asarray([str(x) for x in groups], dtype=object)
-    k_max = max(int(k), min(int(k_max), n))  # a count beyond the values is the widest there is
-    ladder = []
-    kk = float(k)
-    while int(round(kk)) <= k_max:
-        if int(round(kk)) not in ladder:
-            ladder.append(int(round(kk)))
-        kk *= KNN_STEP
-    if k_max not in ladder:
-        ladder.append(int(k_max))
+    ladder = knn_ladder(k, max(int(k), min(int(k_max), n)))  # a count beyond the values is the widest there is
     ev = np.arange(n) if n <= KNN_EVAL_ROWS else np.argsort(b, kind="stable")[
         np.linspace(0, n - 1, KNN_EVAL_ROWS).round().astype(int)]
     other = g[ev][:, None] != g[None, :]                   # (E, n): kernels of other recordings only
@@ -344,8 +356,7 @@ class FieldModel:
         d = B.shape[1]
         m = max(0, min_rows - n)
         # each row's recording (a row without one is its own)
-        labels = [f"rec:{x}" if x is not None else f"row:{i}" for i, x in enumerate(groups)] if groups is not None \
-            else [f"row:{i}" for i in range(n)]
+        labels = recording_labels(groups, n)
         fields = []
         for j in range(d):
             bj, hj = B[:, j], H[:, j]
@@ -441,7 +452,7 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict) -> float:
     sel = np.arange(n) if n <= ECHO_SIM_ROWS else np.argsort(b, kind="stable")[
         np.linspace(0, n - 1, ECHO_SIM_ROWS).round().astype(int)]
     m = sel.size
-    g = np.asarray([f"rec:{x}" if x is not None else f"row:{i}" for i, x in enumerate(groups)], dtype=object)[sel]
+    g = np.asarray(recording_labels(groups, n), dtype=object)[sel]
     other = g[:, None] != g[None, :]
     ok = other.any(axis=1)
     C = np.empty((ECHO_SIM_REPS, m, 5))
@@ -457,12 +468,9 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict) -> float:
     z = 0.0
     for w in ECHO_SIM_WIDTHS:
         ranks = []
-        for c in C:
+        for c in C:  # read as the suite's answer_echo reads it (one kernel sum)
             h = w * (float(np.std(c)) or 1.0)
-            fa = (np.exp(-0.5 * ((c[:, :, None] - c[None, None, :, 0]) / h) ** 2) * other[:, None, :]).sum(-1)
-            fc = (np.exp(-0.5 * ((c[:, :, None, None] - c[None, None, :, :]) / h) ** 2).sum(-1)
-                  * other[:, None, :]).sum(-1)
-            sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)
+            sc = np.log(kernel_sums(c, c[:, :1], other, h) + 1e-12) - np.log(kernel_sums(c, c, other, h) + 1e-12)
             # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
             below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
             ranks.append(below[ok])

@@ -52,7 +52,7 @@ from ..rng import row_rng, stable_seed
 from .follow import FOLLOWS, box_edge_map, find_box_links, find_link, follow_box, follow_strings, grid_offsets, residual_offsets
 from .kinds import builder_for
 from .plan import ONE_D, GroupModel, Reject, RowPlan, constrained_schedule, couple_key, group_key, reprint, share_key, signed_rank
-from .population import KNN_STEP, FieldModel
+from .population import FieldModel, knn_ladder
 from .spec import (
     Interface,
     OptionSpec,
@@ -238,12 +238,7 @@ class Stage:
         k, top = int(self.model["knn"]), int(self.model.get("echo_knn") or 0)
         if top <= k:
             return None
-        ladder = []
-        kk = float(k)
-        while int(round(kk)) < top:
-            ladder.append(int(round(kk)))
-            kk *= KNN_STEP
-        return {"ladder": sorted(set(ladder + [top])), "s": float(self.model["s"]), "lattice": lattice,
+        return {"ladder": knn_ladder(k, top), "s": float(self.model["s"]), "lattice": lattice,
                 "offset": offset, "printed": printed}
 
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,

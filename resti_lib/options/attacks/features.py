@@ -35,6 +35,11 @@ def scalar_or_distance(p: ParsedRow) -> dict | None:
     return vals
 
 
+def reader_log(x):
+    """A magnitude (SI) on the scale readers compare it on: ``log(|x| + 1 mm)`` (arrays too)."""
+    return np.log(np.abs(x) + 1e-3)
+
+
 def value_scale(p: ParsedRow) -> dict | None:
     """Candidate values on the scale of their variation: log |x| for lengths, speeds and trajectories,
     signed degrees for angles; None for other kinds."""
@@ -42,9 +47,9 @@ def value_scale(p: ParsedRow) -> dict | None:
     if all(isinstance(v, V.Scalar) for v in vals.values()):
         if all(v.is_angle for v in vals.values()):
             return {k: float(v.value) for k, v in vals.items()}
-        return {k: float(np.log(abs(v.si) + 1e-3)) for k, v in vals.items()}
+        return {k: float(reader_log(v.si)) for k, v in vals.items()}
     if all(isinstance(v, V.Trajectory) for v in vals.values()):
-        return {k: float(np.log(v.total_distance + 1e-3)) for k, v in vals.items()}
+        return {k: float(reader_log(v.total_distance)) for k, v in vals.items()}
     return None
 
 

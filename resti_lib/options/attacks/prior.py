@@ -209,7 +209,7 @@ ECHO_WIDTHS = (0.02, 0.2)  # kernel widths of the echo rule, as shares of the gr
 ECHO_BLOCK = 64            # rows whose (candidates x reference values) kernels are held at once
 
 
-def _kernel_sums(x: np.ndarray, ref: np.ndarray, keep: np.ndarray, h: float) -> np.ndarray:
+def kernel_sums(x: np.ndarray, ref: np.ndarray, keep: np.ndarray, h: float) -> np.ndarray:
     """``out[i, q] = sum_j keep[i, j] * sum_r K((x[i, q] - ref[j, r]) / h)``: Gaussian kernels of the values
     ``x`` (n, 5) over the reference rows ``ref`` (m, R) that ``keep`` (n, m) allows, in blocks of
     :data:`ECHO_BLOCK` rows."""
@@ -238,8 +238,8 @@ def _echo_scores(batch: Batch) -> Directional:
         spread = float(np.std(X))
         for w in ECHO_WIDTHS:
             h = max(w * spread, 1e-9)
-            fc = _kernel_sums(X, X, other, h)
-            fa = _kernel_sums(X, A, earlier, h)
+            fc = kernel_sums(X, X, other, h)
+            fa = kernel_sums(X, A, earlier, h)
             score = np.log(fa + 1e-12) - np.log(fc + 1e-12)
             for r, i in enumerate(idx):
                 if earlier[r].any():

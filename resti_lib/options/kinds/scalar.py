@@ -9,6 +9,7 @@ from collections import defaultdict
 import numpy as np
 
 from ... import values as V
+from ..attacks.features import reader_log
 from ..follow import DIMENSIONS
 from ..plan import (
     OBJECT_SIZES,
@@ -79,7 +80,7 @@ class ScalarKind(KindBuilder):
 
             def printed(c, sel):  # log rate + offset -> the printed value, on the readers' scale (SI, log)
                 x = np.maximum(np.round((np.exp(c) - eps) / ulp[sel][None, :, None]), 1.0) * ulp[sel][None, :, None]
-                return np.log(x * si[sel][None, :, None] + 1e-3)
+                return reader_log(x * si[sel][None, :, None])
 
             fm = st.fit_fields(moving, b0 - off, H, W, echo=st.echo_spec(info.get("lattice"), off, printed))
         else:  # only exact zeros: distractors from a weak prior about twenty printed units

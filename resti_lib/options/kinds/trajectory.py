@@ -11,6 +11,7 @@ import numpy as np
 from ... import values as V
 from ...errors import OptionError
 from ...rng import row_rng
+from ..attacks.features import reader_log
 from ..follow import turn_sum
 from ..plan import GroupModel, Reject, RowPlan, log_window, slot_rows
 from ..spec import (
@@ -193,4 +194,4 @@ def traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
 def _reader_scale(c: np.ndarray, sel) -> np.ndarray:
     """Log totals over the window plus the window (``log(x + 0.1)``) as readers compare them: the log of
     the total distance (:func:`resti_lib.options.attacks.features.value_scale`)."""
-    return np.log(np.maximum(np.exp(c) - 0.1, 0.0) + 1e-3)
+    return reader_log(np.maximum(np.exp(c) - 0.1, 0.0))
