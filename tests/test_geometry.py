@@ -351,3 +351,29 @@ def test_segment_turns_pause_inside_turn_and_small_wiggles():
     assert segs[0][1] == pytest.approx(50.0, abs=1e-9)  # 10 s at 5 m/s
     assert segs[2][1] == pytest.approx(50.0, abs=1e-9)  # 5 + 1 + 1 + 3 s at 5 m/s (wiggle included)
     assert ev["distance_while_turning_m"] == pytest.approx(30.2, abs=1e-9)  # 6 s at 5 m/s + 0.2 m
+
+
+def test_box_centre_fields_with_depth_exponents_by_hand():
+    """(x, y, z) = (6, 1.5, 16) with exponents (0.5, 1): projective fields x/sqrt(z) = 1.5, y/z = 0.09375,
+    log 16; height fields 1.5, y itself, log 16; both map back to the centre."""
+    from resti_lib.geometry.fields import centre_fields, centre_from_fields
+
+    c = np.array([6.0, 1.5, 16.0])
+    f = centre_fields(c, "projective", (0.5, 1.0))
+    assert np.allclose(f, [1.5, 0.09375, math.log(16.0)])
+    assert np.allclose(centre_fields(c, "height", (0.5, 1.0)), [1.5, 1.5, math.log(16.0)])
+    for mode in ("projective", "height"):
+        assert np.allclose(centre_from_fields(centre_fields(c, mode, (0.5, 1.0)), mode, (0.5, 1.0)), c)
+
+
+def test_the_depth_exponent_is_the_one_that_frees_the_offset_from_depth():
+    """Lateral offsets drawn in metres independent of depth (lanes): exponent near 0; directions drawn
+    independent of depth (offset = z tan(angle)): exponent near 1; offsets spread as sqrt(z): near 0.5."""
+    from resti_lib.options.kinds.box import depth_exponent
+
+    rng = np.random.default_rng(0)
+    n = 4000  # the rank correlation moves slowly with the exponent: many answers pin it to a twentieth
+    z = np.exp(rng.uniform(math.log(4.0), math.log(60.0), n))
+    assert depth_exponent(rng.normal(0.0, 3.0, n), z) <= 0.1
+    assert depth_exponent(z * np.tan(rng.normal(0.0, 0.3, n)), z) >= 0.9
+    assert 0.4 <= depth_exponent(np.sqrt(z) * rng.normal(0.0, 1.0, n), z) <= 0.6

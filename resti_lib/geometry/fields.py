@@ -156,33 +156,39 @@ def from_gaze_fields(f, G) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([x, np.cross(a, x), a]), C
 
 
-def centre_fields(c, mode: str) -> np.ndarray:
-    """A box centre as drawn: projective (x/z, y/z, log z), height (x/z, y, log z) or cartesian."""
+def centre_fields(c, mode: str, power=(1.0, 1.0)) -> np.ndarray:
+    """A box centre as drawn: projective (x/z^px, y/z^py, log z), height (x/z^px, y, log z) or cartesian.
+
+    ``power``: the depth exponents (px, py) of the image-plane coordinates (1: the direction x/z; 0: the
+    metres; :func:`resti_lib.options.kinds.box.depth_exponent` fits them per group)."""
     c = np.asarray(c, float)
+    px, py = power
     if mode == "projective":
-        return np.array([c[0] / c[2], c[1] / c[2], math.log(c[2])])
+        return np.array([c[0] / c[2] ** px, c[1] / c[2] ** py, math.log(c[2])])
     if mode == "height":
-        return np.array([c[0] / c[2], c[1], math.log(c[2])])
+        return np.array([c[0] / c[2] ** px, c[1], math.log(c[2])])
     return c.copy()
 
 
-def centre_from_fields(f, mode: str) -> np.ndarray:
+def centre_from_fields(f, mode: str, power=(1.0, 1.0)) -> np.ndarray:
     f = np.asarray(f, float)
+    px, py = power
     if mode == "projective":
         z = math.exp(f[2])
-        return np.array([f[0] * z, f[1] * z, z])
+        return np.array([f[0] * z ** px, f[1] * z ** py, z])
     if mode == "height":
         z = math.exp(f[2])
-        return np.array([f[0] * z, f[1], z])
+        return np.array([f[0] * z ** px, f[1], z])
     return f.copy()
 
 
-def centre_half_cells(c, mode: str, ulp: float) -> np.ndarray:
+def centre_half_cells(c, mode: str, ulp: float, power=(1.0, 1.0)) -> np.ndarray:
     """Half width of the printed rounding cell of each centre field (first-order)."""
     z = abs(float(c[2])) or 1.0
     h = 0.5 * ulp
+    px, py = power
     if mode == "projective":
-        return np.array([h / z, h / z, h / z])
+        return np.array([h / z ** px, h / z ** py, h / z])
     if mode == "height":
-        return np.array([h / z, h, h / z])
+        return np.array([h / z ** px, h, h / z])
     return np.array([h, h, h])

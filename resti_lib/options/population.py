@@ -333,7 +333,7 @@ class FieldModel:
     @classmethod
     def fit(cls, rids: list, B: np.ndarray, H: np.ndarray, W: np.ndarray | None, *, knn: int, shrink: float,
             min_rows: int = 8, prior_sd=0.5, prior_center=None, max_knn: int = 0,
-            groups: list | None = None, echo: dict | None = None) -> "FieldModel":
+            groups: list | None = None, echo: dict | None = None, field_knn: dict | None = None) -> "FieldModel":
         """Fit on the base values ``B`` (n, d) of the group's rows ``rids`` with half rounding cells
         ``H`` and covariates ``W`` (n, k).
 
@@ -344,11 +344,11 @@ class FieldModel:
 
         ``groups``: each row's recording. A row's distractors are then drawn without its recording's
         answers (:meth:`prepare`), and ``max_knn`` above ``knn`` chooses each field's bandwidth by how
-        well the other recordings predict a recording's answers (:func:`select_knn`). ``echo`` (a one-field
-        group of at least :data:`ECHO_MIN_ROWS` rows): that count is widened while it balances the echo
-        better (:func:`echo_balanced`)."""
+        well the other recordings predict a recording's answers (:func:`select_knn`). ``echo`` (a group of
+        at least :data:`ECHO_MIN_ROWS` rows): each field's count is widened while it balances the echo
+        better (:func:`echo_balanced`). ``field_knn``: {field: count} fixed counts (no choice)."""
         n = len(rids)
-        if echo and n >= ECHO_MIN_ROWS and np.asarray(B).reshape(n, -1).shape[1] == 1 and groups is not None:
+        if echo and n >= ECHO_MIN_ROWS and groups is not None:
             return echo_balanced(cls, rids, B, H, W, knn=knn, shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
                                  prior_center=prior_center, groups=groups, echo=echo, max_knn=max_knn)
         B = np.asarray(B, float).reshape(n, -1) if n else np.zeros((0, np.size(prior_center)))
@@ -366,13 +366,16 @@ class FieldModel:
                 pseudo = centre + sd * norm_quantiles(m)
                 bj = np.concatenate([bj, pseudo])
                 hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
-            fields.append(Marginal.fit(bj, hj, k=knn, k_max=max_knn, groups=labels + [f"pseudo:{i}" for i in range(m)]))
+            kj = (field_knn or {}).get(j)
+            fields.append(Marginal.fit(bj, hj, k=knn if kj is None else int(kj), k_max=max_knn if kj is None else 0,
+                                       groups=labels + [f"pseudo:{i}" for i in range(m)]))
         covs, cs = [], np.zeros((n, 0))
         if W is not None and W.size and n >= min_rows:
             W = np.asarray(W, float).reshape(n, -1)
             keep = [j for j in range(W.shape[1]) if np.nanstd(W[:, j]) > 1e-9]
+            kw = max([knn, *(field_knn or {}).values()])  # covariates as wide as the widest field
             for j in keep:
-                covs.append(Marginal.fit(W[:, j], 1e-6, k=knn))
+                covs.append(Marginal.fit(W[:, j], 1e-6, k=kw))
             if covs:
                 cs = np.column_stack([c.row_map(None).score(W[:, j]) for c, j in zip(covs, keep)])
         if n:
@@ -386,10 +389,12 @@ class FieldModel:
         arrays = {lab: np.array(idx) for lab, idx in members.items()}  # one array per recording, shared by its rows
         return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)}, {i: arrays[lab] for i, lab in enumerate(labels)})
 
-    def prepare(self, rid: str | None, bounds: list | None = None) -> "RowDraw":
+    def prepare(self, rid: str | None, bounds: list | None = None, only: int | None = None) -> "RowDraw":
         """The maps (without the answers of the row's recording, its own included, within the row's
         ``bounds`` [(lower, upper) per field, base space]) and conditional model of one row, computed
-        once; a row outside the model (``None`` or not a member) draws from the whole group."""
+        once; a row outside the model (``None`` or not a member) draws from the whole group. ``only``: the draw
+        of that field alone (its marginal in the joint draw: the anchor's pull and the spread act per
+        standardised score, so one field's draws depend on the row's answer in that field alone)."""
         i = self.index.get(rid) if rid is not None else None
         u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
         if i is None and self.cov_scores.shape[1]:
@@ -399,6 +404,10 @@ class FieldModel:
         out = self.recording.get(i, i) if i is not None else None
         if out is not None and np.size(out) >= self.fields[0].n:  # one recording holds the group: its row alone
             out = i
+        if only is not None:
+            lo, hi = bounds[only]
+            sd = math.sqrt(float((L @ L.T)[only, only]))
+            return RowDraw([self.fields[only].row_map(out, lo, hi)], mu[only:only + 1], np.array([[sd]]))
         return RowDraw([f.row_map(out, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
 
 
@@ -411,33 +420,43 @@ ECHO_Z = 2.0              # the likelihood's count is kept unless its simulated 
 
 def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_center, groups, echo,
                   max_knn=0) -> "FieldModel":
-    """The model of a one-field group with the likelihood's bandwidth count (:func:`select_knn`); where the
-    candidate sets simulated from it leave the answer's echo score more than :data:`ECHO_Z` standard errors
-    from its chance rank (:func:`echo_imbalance`), widened to the count of ``echo["ladder"]`` that leaves it
-    nearest (the narrower count on a tie). Never narrower than the likelihood's count (a narrower kernel
-    prints other rows' answers as distractors more often), and not moved by differences within the
-    simulation's noise. The counts tried and their imbalance are in the model's ``echo``."""
-    first = cls.fit(rids, B, H, W, knn=knn, shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
-                    prior_center=prior_center, max_knn=max_knn, groups=groups)
-    k0 = first.fields[0].k
-    b = np.asarray(B, float).reshape(len(rids))
-    best, best_z, tried = first, echo_imbalance(first, rids, b, groups, echo), {}
-    tried[k0] = round(best_z, 3)
-    for k in (k for k in echo["ladder"] if k > k0 and tried[k0] > ECHO_Z):
-        fm = cls.fit(rids, B, H, W, knn=int(k), shrink=shrink, min_rows=min_rows, prior_sd=prior_sd,
-                     prior_center=prior_center, max_knn=0, groups=groups)
-        z = echo_imbalance(fm, rids, b, groups, echo)
-        tried[int(k)] = round(z, 3)
-        if z < best_z - 1e-9:
-            best, best_z = fm, z
-    best.echo = {"k": int(best.fields[0].k), "likelihood_k": int(k0), "imbalance": tried}
+    """The model of a group with the likelihood's bandwidth counts (:func:`select_knn`); where the candidate
+    sets simulated from it leave the answer's echo score in one field more than :data:`ECHO_Z` standard
+    errors from its chance rank (:func:`echo_imbalance`), that field's count is widened to the one of
+    ``echo["ladder"]`` that leaves it nearest (the narrower count on a tie), field by field in order, the
+    others held. Never narrower than the likelihood's count (a narrower kernel prints other rows' answers as
+    distractors more often), and not moved by differences within the simulation's noise. The counts tried
+    and their imbalance are in the model's ``echo`` (one entry per field)."""
+    kw = dict(shrink=shrink, min_rows=min_rows, prior_sd=prior_sd, prior_center=prior_center, groups=groups)
+    best = cls.fit(rids, B, H, W, knn=knn, max_knn=max_knn, **kw)
+    k0 = [f.k for f in best.fields]
+    n = len(rids)
+    b = np.asarray(B, float).reshape(n, -1)
+    z = echo_imbalance(best, rids, b, groups, echo)
+    counts = dict(enumerate(k0))
+    tried = []
+    for j in range(len(k0)):
+        if counts != dict(enumerate(k0)):  # an earlier field was widened: this one's echo read again
+            z = echo_imbalance(best, rids, b, groups, echo, only=j)
+        best_z = float(z[j])
+        tried.append({k0[j]: round(best_z, 3)})
+        for k in (k for k in echo["ladder"] if k > k0[j] and tried[j][k0[j]] > ECHO_Z):
+            fm = cls.fit(rids, B, H, W, knn=knn, field_knn={**counts, j: int(k)}, **kw)
+            zk = echo_imbalance(fm, rids, b, groups, echo, only=j)
+            tried[j][int(k)] = round(float(zk[j]), 3)
+            if zk[j] < best_z - 1e-9:
+                best, best_z = fm, float(zk[j])
+                counts = {**counts, j: int(k)}
+    best.echo = {"k": [int(f.k) for f in best.fields], "likelihood_k": [int(k) for k in k0], "imbalance": tried}
     return best
 
 
-def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict) -> float:
+def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | None = None) -> np.ndarray:
     """How far the answer's echo score sits from its chance rank in candidate sets simulated from ``fm``
     (the stage's draw without the constraints: spread ``echo["s"]``, quantile lattice ``echo["lattice"]``),
-    in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS`.
+    in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS`; one
+    value per field, each field read on its own (``b``: (n, d) base values; ``only``: that field alone is read,
+    the others are left at 0).
 
     The echo score of a candidate is the density of the other recordings' answers at it over the density of
     their candidates (:func:`resti_lib.options.attacks.prior._answer_echo` reads it the same way, on
@@ -445,38 +464,42 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict) -> float:
     there and the answer scores low; too wide a kernel spreads the distractors where no answer is and the
     answer scores high."""
     n = len(rids)
-    off = np.zeros(n) if echo.get("offset") is None else np.asarray(echo["offset"], float)
-    # the candidate sets are simulated from the data alone (the rows, not the option seed): the model
-    # of a group does not change with the seed the options are drawn with
-    rng = np.random.default_rng(stable_seed("echo balance", ECHO_SIM_REPS, *rids))
-    sel = np.arange(n) if n <= ECHO_SIM_ROWS else np.argsort(b, kind="stable")[
+    b = np.asarray(b, float).reshape(n, -1)
+    d = b.shape[1]
+    off = np.zeros((n, d)) if echo.get("offset") is None else \
+        np.broadcast_to(np.asarray(echo["offset"], float).reshape(n, -1), (n, d))
+    sel = np.arange(n) if n <= ECHO_SIM_ROWS else np.argsort(b[:, 0], kind="stable")[
         np.linspace(0, n - 1, ECHO_SIM_ROWS).round().astype(int)]
     m = sel.size
     g = np.asarray(recording_labels(groups, n), dtype=object)[sel]
     other = g[:, None] != g[None, :]
     ok = other.any(axis=1)
-    C = np.empty((ECHO_SIM_REPS, m, 5))
-    for r, i in enumerate(sel):
-        rd = fm.prepare(rids[i])
-        x = float(b[i])
-        d = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS, lattice=echo.get("lattice"))
-        C[:, r, 0] = x
-        C[:, r, 1:] = d[:, :, 0]
-    C = C + off[sel][None, :, None]
-    if echo.get("printed") is not None:  # the values a reader sees: printed, on the reader's scale
-        C = echo["printed"](C, sel)
-    z = 0.0
-    for w in ECHO_SIM_WIDTHS:
-        ranks = []
-        for c in C:  # read as the suite's answer_echo reads it (one kernel sum)
-            h = w * (float(np.std(c)) or 1.0)
-            sc = np.log(kernel_sums(c, c[:, :1], other, h) + 1e-12) - np.log(kernel_sums(c, c, other, h) + 1e-12)
-            # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
-            below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
-            ranks.append(below[ok])
-        r = np.concatenate(ranks)
-        if r.size:
-            z = max(z, abs(float(r.mean()) - 2.0) / (math.sqrt(2.0) / math.sqrt(r.size / ECHO_SIM_REPS)))
+    z = np.zeros(d)
+    for j in range(d) if only is None else [only]:
+        # the candidate sets are simulated from the data alone (the rows, not the option seed): the model
+        # of a group does not change with the seed the options are drawn with
+        rng = np.random.default_rng(stable_seed("echo balance", ECHO_SIM_REPS, *([] if d == 1 else [j]), *rids))
+        C = np.empty((ECHO_SIM_REPS, m, 5))
+        for r, i in enumerate(sel):
+            rd = fm.prepare(rids[i]) if d == 1 else fm.prepare(rids[i], only=j)
+            x = float(b[i, j])
+            C[:, r, 0] = x
+            C[:, r, 1:] = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS,
+                                  lattice=echo.get("lattice"))[:, :, 0]
+        C = C + off[sel, j][None, :, None]
+        if echo.get("printed") is not None:  # the values a reader sees: printed, on the reader's scale
+            C = echo["printed"](C, sel, j)
+        for w in ECHO_SIM_WIDTHS:
+            ranks = []
+            for c in C:  # read as the suite's answer_echo reads it (one kernel sum)
+                h = w * (float(np.std(c)) or 1.0)
+                sc = np.log(kernel_sums(c, c[:, :1], other, h) + 1e-12) - np.log(kernel_sums(c, c, other, h) + 1e-12)
+                # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
+                below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
+                ranks.append(below[ok])
+            r = np.concatenate(ranks)
+            if r.size:
+                z[j] = max(z[j], abs(float(r.mean()) - 2.0) / (math.sqrt(2.0) / math.sqrt(r.size / ECHO_SIM_REPS)))
     return z
 
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import spearmanr
 
 from ... import values as V
 from ...errors import InputError
@@ -19,6 +20,29 @@ from ..spec import (
     per_source,
 )
 from . import KindBuilder, register_kind
+
+EXPONENTS = np.linspace(0.0, 1.0, 21)   # the depth exponents tried for an image-plane coordinate
+
+
+def depth_exponent(x, z) -> float:
+    """The exponent ``p`` of :data:`EXPONENTS` for which the magnitude of ``x / z**p`` is least rank-correlated
+    with the depth ``z`` among a group's answers (1.0, the direction x/z, below 8 answers).
+
+    A box's lateral offset is spread in metres at every depth (a lane is a lane near and far), so its
+    direction x/z narrows with depth: a dependence of spread, which a normal copula of x/z and log z cannot
+    hold. Drawn as x/z with the depth drawn near the answer's, the distractors would then pair wide
+    directions with far depths and print lateral offsets no answer has. Drawn as the coordinate whose
+    magnitude does not depend on depth, they print them as the answers do."""
+    x, z = np.asarray(x, float), np.asarray(z, float)
+    if x.size < 8:
+        return 1.0
+    ax, lz = np.abs(x), np.log(z)
+    best, best_r = 1.0, math.inf
+    for p in EXPONENTS:
+        r = abs(float(spearmanr(ax / z ** p, lz)[0]))
+        if np.isfinite(r) and r < best_r - 1e-9:
+            best, best_r = float(p), r
+    return best
 
 
 @register_kind("box")
@@ -34,6 +58,9 @@ class BoxKind(KindBuilder):
         info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "up_axis": up_axis}
         cs = np.array([p.spec.value.center for p in ps], float)
         ds = np.array([p.spec.value.lwh for p in ps], float)
+        front = cs[:, 2] > 0
+        info["power"] = (depth_exponent(cs[front, 0], cs[front, 2]),
+                         depth_exponent(cs[front, 1], cs[front, 2]) if mode == "projective" else 1.0)
         info["decimals"] = {**{f"c{j}": recorded_decimals(cs[:, j], 3) for j in range(3)},
                             **{f"d{j}": recorded_decimals(ds[:, j], 3) for j in range(3)}}
         rows_f, rows_h = [], []
@@ -63,8 +90,8 @@ class BoxKind(KindBuilder):
             v = p.spec.value
             c = np.array(v.center, float)
             m = info["mode"][p.rid]
-            f = centre_fields(c, mode) if m == mode else np.full(3, np.nan)
-            hc = centre_half_cells(c, mode, 10.0 ** -3)
+            f = centre_fields(c, mode, info["power"]) if m == mode else np.full(3, np.nan)
+            hc = centre_half_cells(c, mode, 10.0 ** -3, info["power"])
             dd = np.maximum(np.array(v.lwh, float), 1e-4)
             hd = 0.5e-3 / dd
             info["class_off"][p.rid] = coff[i]
@@ -82,8 +109,14 @@ class BoxKind(KindBuilder):
         members = [p.rid for p, k in zip(ps, ok) if k]
         if not members:
             raise InputError(f"{g}: no box in front of the camera", field="Answer Detail")
+        # the echo is read per field on the fields' scale, the edges as log metres (class offset back)
+        off = np.zeros_like(F)
+        off[:, 3:6] = np.array([coff[i] for i in range(len(ps))])
+        def printed(c, sel, j):  # the heading as the rotation prints it (its cosine); the others as drawn
+            return np.cos(np.radians(from_cut_line(c, cut))) if j == 6 else c
+
         fm = st.fit_fields([p for p, k in zip(ps, ok) if k], F[ok], Hh[ok], None,
-                           prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0])
+                           prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0], echo=st.echo_spec(None, off[ok], printed))
         info["group_mode"] = mode
         # rows behind the camera: draw like the nearest member in the field model (rare; recorded)
         info["proxy"] = {p.rid: members[0] for p, k in zip(ps, ok) if not k}
@@ -101,8 +134,8 @@ class BoxKind(KindBuilder):
         up_axis = info["up_axis"]
         coff = info["class_off"][p.rid]
         if rid == p.rid:
-            f0 = centre_fields(c0, mode)
-            hc = centre_half_cells(c0, mode, 1e-3)
+            f0 = centre_fields(c0, mode, info["power"])
+            hc = centre_half_cells(c0, mode, 1e-3, info["power"])
             cells = [(f0[j] - hc[j], f0[j] + hc[j]) for j in range(3)]
             ld = np.log(np.maximum(d0, 1e-4)) - coff
             hd = 0.5e-3 / np.maximum(d0, 1e-4)
@@ -111,7 +144,7 @@ class BoxKind(KindBuilder):
                 y = float(on_cut_line(info["yaw0"][p.rid], info["cut"]))
                 cells.append((y - 0.005, y + 0.005))
             B = st.draw(gm, p.rid, cells, s, rng, n=4)
-            centres = np.array([centre_from_fields(b[:3], mode) for b in B])
+            centres = np.array([centre_from_fields(b[:3], mode, info["power"]) for b in B])
         else:  # a centre behind the camera: exchangeable cartesian shifts
             B = st.draw(gm, rid, [], s, rng, n=4, prior=True)
             centres = c0 + rng.normal(0.0, 0.1 * max(1.0, np.linalg.norm(c0)), (4, 3))

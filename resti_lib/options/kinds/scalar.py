@@ -78,7 +78,7 @@ class ScalarKind(KindBuilder):
             ulp = np.array([p.spec.ulp for p in moving])
             si = np.array([p.spec.value.si_per_unit for p in moving])
 
-            def printed(c, sel):  # log rate + offset -> the printed value, on the readers' scale (SI, log)
+            def printed(c, sel, j=0):  # log rate + offset -> the printed value, on the readers' scale (SI, log)
                 x = np.maximum(np.round((np.exp(c) - eps) / ulp[sel][None, :, None]), 1.0) * ulp[sel][None, :, None]
                 return reader_log(x * si[sel][None, :, None])
 

@@ -191,7 +191,7 @@ def traj_formatter(template: V.Trajectory, pars: dict, rng, *, centred: bool):
     return fmt
 
 
-def _reader_scale(c: np.ndarray, sel) -> np.ndarray:
+def _reader_scale(c: np.ndarray, sel, j=0) -> np.ndarray:
     """Log totals over the window plus the window (``log(x + 0.1)``) as readers compare them: the log of
     the total distance (:func:`resti_lib.options.attacks.features.value_scale`)."""
     return reader_log(np.maximum(np.exp(c) - 0.1, 0.0))
