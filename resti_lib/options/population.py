@@ -389,12 +389,14 @@ class FieldModel:
         arrays = {lab: np.array(idx) for lab, idx in members.items()}  # one array per recording, shared by its rows
         return cls(fields, covs, cop, cs, {r: i for i, r in enumerate(rids)}, {i: arrays[lab] for i, lab in enumerate(labels)})
 
-    def prepare(self, rid: str | None, bounds: list | None = None, only: int | None = None) -> "RowDraw":
+    def prepare(self, rid: str | None, bounds: list | None = None, only: int | None = None,
+                memo: dict | None = None) -> "RowDraw":
         """The maps (without the answers of the row's recording, its own included, within the row's
         ``bounds`` [(lower, upper) per field, base space]) and conditional model of one row, computed
         once; a row outside the model (``None`` or not a member) draws from the whole group. ``only``: the draw
         of that field alone (its marginal in the joint draw: the anchor's pull and the spread act per
-        standardised score, so one field's draws depend on the row's answer in that field alone)."""
+        standardised score, so one field's draws depend on the row's answer in that field alone); ``memo``:
+        a dict that keeps that field's map per recording left out (rows of one recording share it)."""
         i = self.index.get(rid) if rid is not None else None
         u_w = self.cov_scores[i] if (i is not None and self.cov_scores.shape[1]) else None
         if i is None and self.cov_scores.shape[1]:
@@ -407,7 +409,11 @@ class FieldModel:
         if only is not None:
             lo, hi = bounds[only]
             sd = math.sqrt(float((L @ L.T)[only, only]))
-            return RowDraw([self.fields[only].row_map(out, lo, hi)], mu[only:only + 1], np.array([[sd]]))
+            key = (only, lo, hi, None if out is None else np.asarray(out).tobytes())
+            memo = {} if memo is None else memo
+            if key not in memo:
+                memo[key] = self.fields[only].row_map(out, lo, hi)
+            return RowDraw([memo[key]], mu[only:only + 1], np.array([[sd]]))
         return RowDraw([f.row_map(out, lo, hi) for f, (lo, hi) in zip(self.fields, bounds)], mu, L)
 
 
@@ -436,8 +442,8 @@ def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_
     counts = dict(enumerate(k0))
     tried = []
     for j in range(len(k0)):
-        if counts != dict(enumerate(k0)):  # an earlier field was widened: this one's echo read again
-            z = echo_imbalance(best, rids, b, groups, echo, only=j)
+        # a field's echo is read from its draws alone (:meth:`FieldModel.prepare`), which another field's
+        # count does not move: the first reading stands while earlier fields are widened
         best_z = float(z[j])
         tried.append({k0[j]: round(best_z, 3)})
         for k in (k for k in echo["ladder"] if k > k0[j] and tried[j][k0[j]] > ECHO_Z):
@@ -480,8 +486,9 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
         # of a group does not change with the seed the options are drawn with
         rng = np.random.default_rng(stable_seed("echo balance", ECHO_SIM_REPS, *([] if d == 1 else [j]), *rids))
         C = np.empty((ECHO_SIM_REPS, m, 5))
+        memo: dict = {}
         for r, i in enumerate(sel):
-            rd = fm.prepare(rids[i]) if d == 1 else fm.prepare(rids[i], only=j)
+            rd = fm.prepare(rids[i]) if d == 1 else fm.prepare(rids[i], only=j, memo=memo)
             x = float(b[i, j])
             C[:, r, 0] = x
             C[:, r, 1:] = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS,
