@@ -34,9 +34,9 @@ def depth_exponent(x, z) -> float:
     directions with far depths and print lateral offsets no answer has. Drawn as the coordinate whose
     magnitude does not depend on depth, they print them as the answers do."""
     x, z = np.asarray(x, float), np.asarray(z, float)
-    if x.size < 8:
-        return 1.0
     ax, lz = np.abs(x), np.log(z)
+    if x.size < 8 or np.ptp(lz) == 0 or np.ptp(ax) == 0:  # no depth dependence can be read
+        return 1.0
     best, best_r = 1.0, math.inf
     for p in EXPONENTS:
         r = abs(float(spearmanr(ax / z ** p, lz)[0]))
