@@ -377,3 +377,24 @@ def test_the_depth_exponent_is_the_one_that_frees_the_offset_from_depth():
     assert depth_exponent(rng.normal(0.0, 3.0, n), z) <= 0.1
     assert depth_exponent(z * np.tan(rng.normal(0.0, 0.3, n)), z) >= 0.9
     assert 0.4 <= depth_exponent(np.sqrt(z) * rng.normal(0.0, 1.0, n), z) <= 0.6
+
+
+def test_shell_fields_by_hand_and_the_gaze_fields_round_trip():
+    """An offset (0, 0, -2) from the gaze point (the reference camera's side) is (log 2, 0, 0); (3, 0, 0)
+    is azimuth 90; (0, -1, -1) is elevation -45 at distance sqrt 2. A camera near the desk looking at
+    the gaze point, through the gaze fields and back, is itself."""
+    from resti_lib.geometry.fields import from_gaze_fields, from_shell_fields, gaze_fields, shell_fields
+
+    assert np.allclose(shell_fields([0.0, 0.0, -2.0]), [math.log(2.0), 0.0, 0.0])
+    assert np.allclose(shell_fields([3.0, 0.0, 0.0]), [math.log(3.0), 90.0, 0.0])
+    assert np.allclose(shell_fields([0.0, -1.0, -1.0]), [0.5 * math.log(2.0), 0.0, -45.0])
+    for v in ([0.0, 0.0, -2.0], [3.0, 0.0, 0.0], [0.2, -0.4, 0.3]):
+        assert np.allclose(from_shell_fields(shell_fields(v)), v)
+    G = np.array([0.0, 0.0, 0.8])
+    C = np.array([0.3, -0.2, 0.1])
+    a = (G - C) / np.linalg.norm(G - C)
+    x = np.cross([0.0, 1.0, 0.0], a)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(a, x), a])
+    R2, C2 = from_gaze_fields(gaze_fields(R, C, G), G)
+    assert np.allclose(C2, C) and np.allclose(R2, R)

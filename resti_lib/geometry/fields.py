@@ -123,9 +123,13 @@ def gaze_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def gaze_fields(R, t, G) -> np.ndarray:
-    """A camera relative to a gaze point ``G`` (reference frame): its centre (3), the two angles of its
-    optical axis away from the line towards ``G`` and its roll about the optical axis (degrees).
-    Cameras around a desk look at it: every candidate drawn this way does too."""
+    """A camera relative to a gaze point ``G`` (reference frame): its centre as seen from ``G`` (the log
+    of its distance, the azimuth about the frame's vertical and the elevation, degrees; azimuth and
+    elevation 0: on the reference camera's side, -Z from ``G``), the two angles of its optical axis
+    away from the line towards ``G`` and its roll about the optical axis (degrees).
+    Cameras around a desk look at it from about one distance: every candidate drawn this way does too
+    (drawn as the centre's coordinates, a normal copula cannot keep them on that shell: v5 Omni6DPose
+    distractors' distances to the gaze point spread 0.23 in log, the answers' 0.14)."""
     R, C = np.asarray(R, float), np.asarray(t, float)
     a = R[:, 2]
     u = np.asarray(G, float) - C
@@ -137,13 +141,27 @@ def gaze_fields(R, t, G) -> np.ndarray:
     xr /= np.linalg.norm(xr)
     yr = np.cross(a, xr)
     roll = np.degrees(np.arctan2(R[:, 0] @ yr, R[:, 0] @ xr))
-    return np.array([*C, alpha, beta, roll])
+    return np.array([*shell_fields(C - np.asarray(G, float)), alpha, beta, roll])
+
+
+def shell_fields(v) -> np.ndarray:
+    """An offset ``v`` as (log distance, azimuth, elevation) in degrees: azimuth about the frame's +Y
+    (down) from -Z, elevation towards +Y."""
+    v = np.asarray(v, float)
+    r = max(float(np.linalg.norm(v)), 1e-9)
+    return np.array([math.log(r), math.degrees(math.atan2(v[0], -v[2])), math.degrees(math.asin(max(-1.0, min(1.0, v[1] / r))))])
+
+
+def from_shell_fields(f) -> np.ndarray:
+    """The offset of :func:`shell_fields` (its inverse)."""
+    r, az, el = math.exp(float(f[0])), math.radians(float(f[1])), math.radians(float(f[2]))
+    return r * np.array([math.cos(el) * math.sin(az), math.sin(el), -math.cos(el) * math.cos(az)])
 
 
 def from_gaze_fields(f, G) -> tuple[np.ndarray, np.ndarray]:
     """The inverse of :func:`gaze_fields`: (R, t)."""
     f = np.asarray(f, float)
-    C = f[:3]
+    C = np.asarray(G, float) + from_shell_fields(f[:3])
     u = np.asarray(G, float) - C
     u /= np.linalg.norm(u)
     e1, e2 = gaze_basis(u)

@@ -52,6 +52,14 @@ def heading_axis(premises: list, up) -> int:
     return int(np.argmin(tilt))
 
 
+def shell_half_cells(f, h: float) -> list[float]:
+    """Half widths of the printed cell (``h`` metres per coordinate) in the shell fields of a camera
+    centre (:func:`~resti_lib.geometry.fields.shell_fields`): log distance, azimuth and elevation
+    (degrees), first order."""
+    r = max(float(np.exp(f[0])), h)
+    return [h / r, float(np.degrees(h / r)), float(np.degrees(h / r))]
+
+
 @register_kind("pose")
 class PoseKind(KindBuilder):
     """Poses: a motion from the premise pose (translation in the premise's heading frame, a turn about
@@ -108,19 +116,20 @@ class PoseKind(KindBuilder):
             depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
             G = np.array([0.0, 0.0, float(np.nanmedian(depths)) if np.isfinite(depths).any() else 0.5])
             info["gaze"] = G
-            yaws = []
             for p in ps:
                 f = gaze_fields(info["R0"][p.rid], p.spec.value.t, G)
                 F.append(list(f))
-                Hh.append([0.5 * 10.0 ** -p.spec.value.decimals] * 3 + [0.3, 0.3, 0.3])
-                yaws.append(f[5])
-            cut = circular_cut(yaws)
-            info["cut"] = cut
+                Hh.append(shell_half_cells(f, 0.5 * 10.0 ** -p.spec.value.decimals) + [0.3, 0.3, 0.3])
+            # the azimuth about the gaze point and the roll are circular: each on the line cut where the
+            # group's answers are sparsest
+            info["cut_az"] = circular_cut([row[1] for row in F])
+            info["cut"] = circular_cut([row[5] for row in F])
             for row in F:
-                row[5] = float(on_cut_line(row[5], cut))
+                row[1] = float(on_cut_line(row[1], info["cut_az"]))
+                row[5] = float(on_cut_line(row[5], info["cut"]))
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
         fm = st.fit_fields(ps, F, Hh, W if np.isfinite(W).all() else None,
-                           prior_sd=([0.2, 0.2, 0.2, 5.0, 5.0, 10.0] if relative else
+                           prior_sd=([0.2, 20.0, 20.0, 5.0, 5.0, 10.0] if relative else
                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
 
@@ -182,11 +191,13 @@ class PoseKind(KindBuilder):
         if n_draw and info["relative"]:
             G = info["gaze"]
             f0 = gaze_fields(R0, t0, G)
+            hh = shell_half_cells(f0, h_t) + [0.3, 0.3, 0.3]
+            f0[1] = float(on_cut_line(f0[1], info["cut_az"]))
             f0[5] = float(on_cut_line(f0[5], info["cut"]))
-            hh = [h_t] * 3 + [0.3, 0.3, 0.3]
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 b = np.array(b, float)
+                b[1] = float(from_cut_line(b[1], info["cut_az"]))
                 b[5] = float(from_cut_line(b[5], info["cut"]))
                 R, t = from_gaze_fields(b, G)
                 T = np.eye(4)
