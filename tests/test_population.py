@@ -109,6 +109,18 @@ def _echo_rank_by_hand(b, groups, h, reps: int, seed: int) -> tuple[float, float
     return float(np.mean(ranks)), math.sqrt(2.0) / math.sqrt(len(ranks) / reps)
 
 
+def _asked_twice():
+    """Thirty recordings, each asking one quantity twice (answers 2% apart), half in a tight mode, half
+    spread out: the answers and their recordings."""
+    rng = np.random.default_rng(0)
+    b, groups = [], []
+    for r in range(30):
+        x = rng.normal(-3.0, 0.3) if r % 2 else rng.normal(2.0, 1.0)
+        b += [x, x + rng.normal(0.0, 0.02)]
+        groups += [f"rec{r}", f"rec{r}"]
+    return np.array(b), groups
+
+
 def test_the_bandwidth_widens_until_the_answers_echo_is_at_chance():
     """Thirty recordings ask one quantity twice (the same car over two windows: two answers 2% apart), half
     of them in a tight mode, half spread out. The likelihood, which counts a recording's answers as one
@@ -116,13 +128,7 @@ def test_the_bandwidth_widens_until_the_answers_echo_is_at_chance():
     own answer, and the other rows' distractors crowd there (an echo). Drawn a second way (a random other
     answer plus kernel noise) and scored term by term, the answer's echo rank is far below its chance
     rank of 2 at the likelihood's count, and at chance at the count the echo balance picks."""
-    rng = np.random.default_rng(0)
-    b, groups = [], []
-    for r in range(30):
-        x = rng.normal(-3.0, 0.3) if r % 2 else rng.normal(2.0, 1.0)
-        b += [x, x + rng.normal(0.0, 0.02)]
-        groups += [f"rec{r}", f"rec{r}"]
-    b = np.array(b)
+    b, groups = _asked_twice()
     rids = [f"r{i}" for i in range(len(b))]
     def fit(**kw):
         return FieldModel.fit(rids, b[:, None], np.full((len(b), 1), 1e-3), None, shrink=3.0, groups=groups, **kw)
@@ -142,12 +148,7 @@ def test_each_field_of_a_joint_model_is_widened_on_its_own():
     apart), the second a smooth spread with no repeats. The echo balance widens the first field's count
     (its echo rank, drawn a second way and scored term by term, goes from far below chance to chance) and
     leaves the second at the likelihood's count."""
-    rng = np.random.default_rng(0)
-    b, groups = [], []
-    for r in range(30):
-        x = rng.normal(-3.0, 0.3) if r % 2 else rng.normal(2.0, 1.0)
-        b += [x, x + rng.normal(0.0, 0.02)]
-        groups += [f"rec{r}", f"rec{r}"]
+    b, groups = _asked_twice()
     B = np.column_stack([b, np.random.default_rng(1).normal(0.0, 1.0, len(b))])
     rids = [f"r{i}" for i in range(len(B))]
     fm = FieldModel.fit(rids, B, np.full(B.shape, 1e-3), None, knn=4, max_knn=32, shrink=3.0, groups=groups,
