@@ -152,6 +152,13 @@ def shell_fields(v) -> np.ndarray:
     return np.array([math.log(r), math.degrees(math.atan2(v[0], -v[2])), math.degrees(math.asin(max(-1.0, min(1.0, v[1] / r))))])
 
 
+def shell_half_cells(f, h: float) -> list[float]:
+    """Half widths of the printed cell (``h`` metres per coordinate) in the shell fields ``f`` of an offset
+    (:func:`shell_fields`): log distance, azimuth and elevation (degrees), first order."""
+    r = max(math.exp(float(f[0])), h)
+    return [h / r, math.degrees(h / r), math.degrees(h / r)]
+
+
 def from_shell_fields(f) -> np.ndarray:
     """The offset of :func:`shell_fields` (its inverse)."""
     r, az, el = math.exp(float(f[0])), math.radians(float(f[1])), math.radians(float(f[2]))

@@ -484,11 +484,12 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
     for j in range(d) if only is None else [only]:
         # the candidate sets are simulated from the data alone (the rows, not the option seed): the model
         # of a group does not change with the seed the options are drawn with
+        # (a one-field group's seed names no field: its simulation is the one it has always been)
         rng = np.random.default_rng(stable_seed("echo balance", ECHO_SIM_REPS, *([] if d == 1 else [j]), *rids))
         C = np.empty((ECHO_SIM_REPS, m, 5))
         memo: dict = {}
         for r, i in enumerate(sel):
-            rd = fm.prepare(rids[i]) if d == 1 else fm.prepare(rids[i], only=j, memo=memo)
+            rd = fm.prepare(rids[i], only=j, memo=memo)
             x = float(b[i, j])
             C[:, r, 0] = x
             C[:, r, 1:] = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS,

@@ -230,7 +230,7 @@ class Stage:
                               **kw)
 
     def echo_spec(self, lattice=None, offset=None, printed=None) -> dict | None:
-        """How a one-field group's bandwidth is widened against the echo
+        """How each field's bandwidth of a group is widened against the echo
         (:func:`resti_lib.options.population.echo_balanced`): the neighbour counts tried (``knn``, 1.5 ``knn``,
         ... up to ``model.echo_knn``) and the draw simulated (the spread ``model.s``, the group's ``lattice``,
         each row's ``offset`` back to the printed scale and ``printed``, the values a reader sees); None

@@ -111,7 +111,8 @@ class BoxKind(KindBuilder):
             raise InputError(f"{g}: no box in front of the camera", field="Answer Detail")
         # the echo is read per field on the fields' scale, the edges as log metres (class offset back)
         off = np.zeros_like(F)
-        off[:, 3:6] = np.array([coff[i] for i in range(len(ps))])
+        off[:, 3:6] = np.asarray(coff, float)
+
         def printed(c, sel, j):  # the heading as the rotation prints it (its cosine); the others as drawn
             return np.cos(np.radians(from_cut_line(c, cut))) if j == 6 else c
 

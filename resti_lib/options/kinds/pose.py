@@ -14,6 +14,7 @@ from ...geometry.fields import (
     gaze_fields,
     horizontal_frame,
     rotation_preimage,
+    shell_half_cells,
     yaw_tilt,
 )
 from ...geometry.frames import nearest_rotation
@@ -50,14 +51,6 @@ def heading_axis(premises: list, up) -> int:
     up = np.asarray(up, float) / np.linalg.norm(up)
     tilt = np.median([np.abs(np.asarray(P, float)[:3, :3].T @ up) for P in premises], axis=0)
     return int(np.argmin(tilt))
-
-
-def shell_half_cells(f, h: float) -> list[float]:
-    """Half widths of the printed cell (``h`` metres per coordinate) in the shell fields of a camera
-    centre (:func:`~resti_lib.geometry.fields.shell_fields`): log distance, azimuth and elevation
-    (degrees), first order."""
-    r = max(float(np.exp(f[0])), h)
-    return [h / r, float(np.degrees(h / r)), float(np.degrees(h / r))]
 
 
 @register_kind("pose")
