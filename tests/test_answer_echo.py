@@ -58,3 +58,32 @@ def test_echo_rule_hits_are_binomial_under_random_answer_letters():
         h = np.array(h)
         assert abs(h.mean() - n_used / 5) < 4 * np.sqrt(n_used * 0.16 / PERMUTATIONS), (d, h.mean())
         assert lo < h.var(ddof=1) / (n_used * 0.16) < hi, (d, h.var(ddof=1), lo, hi)
+
+
+def test_kernel_sums_are_the_double_sum_written_out():
+    """The blocked, in-place kernel sums against the definition summed term by term in plain Python:
+    ``out[i, q] = sum_j keep[i, j] sum_r exp(-((x[i, q] - ref[j, r]) / h)^2 / 2)``, and the first reference
+    column alone; more rows than one block, so the blocks' seams are crossed."""
+    import math
+
+    from resti_lib.options.attacks.prior import ECHO_BLOCK, kernel_sums
+
+    rng = np.random.default_rng(7)
+    n, m, h = 2 * ECHO_BLOCK + 3, 2 * ECHO_BLOCK + 5, 0.35
+    x, ref = rng.normal(size=(n, 5)), rng.normal(size=(m, 3))
+    keep = rng.random((n, m)) < 0.6
+    want = np.zeros((n, 5))
+    want1 = np.zeros((n, 5))
+    for i in range(n):
+        for q in range(5):
+            for j in range(m):
+                if keep[i, j]:
+                    terms = [math.exp(-0.5 * ((x[i, q] - ref[j, r]) / h) ** 2) for r in range(3)]
+                    want[i, q] += sum(terms)
+                    want1[i, q] += terms[0]
+    got, got1 = kernel_sums(x, ref, keep, h, first=True)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(got1, want1, rtol=1e-12, atol=1e-300)
+    np.testing.assert_array_equal(kernel_sums(x, ref, keep, h), got)
+    # the first column alone is the sum over a one-column reference
+    np.testing.assert_allclose(kernel_sums(x, ref[:, :1], keep, h), got1, rtol=1e-12)

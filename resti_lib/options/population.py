@@ -176,6 +176,7 @@ class Marginal:
     grid: np.ndarray
     total: np.ndarray
     k: int = 4  # the neighbour count of the bandwidth
+    _own: dict = field(default_factory=dict, repr=False, compare=False)  # summed CDF of the rows left out, per set
 
     @property
     def n(self) -> int:
@@ -220,7 +221,10 @@ class Marginal:
         if out.size == 0 or out.size >= n:
             p = self.total / n
         else:  # the row's own answer (and its recording's), out of the group's summed CDF
-            own = ndtr((self.grid[:, None] - self.b[out][None, :]) / self.h[out][None, :]).sum(axis=1)
+            key = out.tobytes()
+            own = self._own.get(key)
+            if own is None:  # kept per set left out: the rows of one recording leave out the same rows
+                own = self._own[key] = ndtr((self.grid[:, None] - self.b[out][None, :]) / self.h[out][None, :]).sum(axis=1)
             p = (self.total - own) / (n - out.size)
         if lower is not None or upper is not None:
             p_lo = float(np.interp(lower, self.grid, p)) if lower is not None else 0.0
@@ -501,7 +505,8 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
             ranks = []
             for c in C:  # read as the suite's answer_echo reads it (one kernel sum)
                 h = w * (float(np.std(c)) or 1.0)
-                sc = np.log(kernel_sums(c, c[:, :1], other, h) + 1e-12) - np.log(kernel_sums(c, c, other, h) + 1e-12)
+                fc, fa = kernel_sums(c, c, other, h, first=True)   # the answers are the first column
+                sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)
                 # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
                 below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
                 ranks.append(below[ok])

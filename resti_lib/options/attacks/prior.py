@@ -206,18 +206,27 @@ def _nearest_set(batch: Batch):
 
 
 ECHO_WIDTHS = (0.02, 0.2)  # kernel widths of the echo rule, as shares of the group's spread of candidate values
-ECHO_BLOCK = 64            # rows whose (candidates x reference values) kernels are held at once
+ECHO_BLOCK = 16            # rows whose (candidates x reference values) kernels are held at once (within cache)
 
 
-def kernel_sums(x: np.ndarray, ref: np.ndarray, keep: np.ndarray, h: float) -> np.ndarray:
+def kernel_sums(x: np.ndarray, ref: np.ndarray, keep: np.ndarray, h: float, *, first: bool = False):
     """``out[i, q] = sum_j keep[i, j] * sum_r K((x[i, q] - ref[j, r]) / h)``: Gaussian kernels of the values
     ``x`` (n, 5) over the reference rows ``ref`` (m, R) that ``keep`` (n, m) allows, in blocks of
-    :data:`ECHO_BLOCK` rows."""
+    :data:`ECHO_BLOCK` rows (each row's sums are the same in any block). ``first``: also the sums over the first
+    reference column alone (``ref[:, :1]``), from the same kernels (a pair ``(out, out_first)``)."""
     out = np.zeros(x.shape)
+    out1 = np.zeros(x.shape) if first else None
     for s in range(0, len(x), ECHO_BLOCK):
-        z = (x[s:s + ECHO_BLOCK, :, None, None] - ref[None, None, :, :]) / h        # (b, 5, m, R)
-        out[s:s + ECHO_BLOCK] = (np.exp(-0.5 * z * z).sum(-1) * keep[s:s + ECHO_BLOCK, None, :]).sum(-1)
-    return out
+        e = np.subtract(x[s:s + ECHO_BLOCK, :, None, None], ref[None, None, :, :])   # (b, 5, m, R), in place:
+        e /= h
+        np.multiply(e, e, out=e)
+        e *= -0.5                                                                  # -z*z/2 (exact halving)
+        np.exp(e, out=e)
+        k = keep[s:s + ECHO_BLOCK, None, :]
+        out[s:s + ECHO_BLOCK] = (e.sum(-1) * k).sum(-1)
+        if first:
+            out1[s:s + ECHO_BLOCK] = (e[..., 0] * k).sum(-1)
+    return (out, out1) if first else out
 
 
 def _echo_scores(batch: Batch) -> Directional:
