@@ -408,9 +408,17 @@ def agree(a: Value, b: Value, *, rel: float = 0.0, abs_tol: float | None = None)
 
 # ---------------------------------------------------------------- formatting (ReSTI v5 encodings)
 
-def _r(x: float, d: int) -> float:
+def _r(x: float, d: int, signed_zero: bool = True) -> float:
     v = round(float(x), d)
-    return v
+    return v if signed_zero else v + 0.0  # ``-0.0 + 0.0`` is ``0.0``: a zero printed without its sign
+
+
+def prints_negative_zero(values) -> bool:
+    """Whether any of the printed ``values`` is a negative zero (``-0.0``): a printer that keeps the sign of
+    a value that rounds to zero. A release whose answers never show one prints its zeros unsigned, and a
+    distractor that printed ``-0.0`` there would be told from the answers by that sign alone."""
+    x = np.asarray(values, dtype=float).ravel()
+    return bool(np.any((x == 0) & np.signbit(x)))
 
 
 def format_seconds(t: float) -> str:
@@ -452,11 +460,12 @@ def format_angle(deg: float, decimals: int = 2) -> str:
     return txt + "°"
 
 
-def format_pose(T: np.ndarray, decimals: int = 2, *, compact: bool = False) -> str:
-    """Pose JSON ``{"tx","ty","tz","r11".."r33"}``; ``compact`` as v5 Waymo rows, spaced as ScanNet."""
+def format_pose(T: np.ndarray, decimals: int = 2, *, compact: bool = False, signed_zero: bool = True) -> str:
+    """Pose JSON ``{"tx","ty","tz","r11".."r33"}``; ``compact`` as v5 Waymo rows, spaced as ScanNet;
+    ``signed_zero`` False: an entry that rounds to zero prints ``0.0`` whatever its sign."""
     T = np.asarray(T, dtype=float)
     vals = [T[0, 3], T[1, 3], T[2, 3]] + [T[i, j] for i in range(3) for j in range(3)]
-    obj = {k: _r(v, decimals) for k, v in zip(POSE_KEYS, vals)}
+    obj = {k: _r(v, decimals, signed_zero) for k, v in zip(POSE_KEYS, vals)}
     return json.dumps(obj, separators=(",", ":") if compact else (", ", ": "))
 
 
@@ -516,7 +525,7 @@ def number_tokens(text: str) -> list[str]:
 
 __all__ = [
     "Scalar", "Pose", "Box", "Trajectory", "Label", "Value", "parse", "same_value", "agree",
-    "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box",
+    "format_scalar", "format_angle", "format_pose", "format_box", "format_legacy_box", "prints_negative_zero",
     "format_trajectory", "format_seconds", "box_heading", "wrap_degrees", "adaptive_decimals", "NO_MOVEMENT",
     "RELATION_LABELS", "canonical_unit", "si_factor", "unit_dimension", "number_tokens",
 ]

@@ -380,6 +380,89 @@ def test_rotation_preimage_prints_as_the_answer():
         assert np.array_equal(np.round(Q, 2), P)
 
 
+def test_rotation_preimage_keeps_the_printed_sign_of_a_zero():
+    """A level camera's tilt entries print -0.0 or 0.0: with the sign kept, an entry printed -0.0 has a
+    preimage below zero and one printed 0.0 one at or above it (each checked on the unrounded entry)."""
+    rng = np.random.default_rng(9)
+    seen = Counter()
+    for _ in range(60):
+        R = Rotation.from_euler("ZYX", [rng.uniform(-180, 180), rng.normal(0, 0.2), rng.normal(0, 0.2)],
+                                degrees=True).as_matrix()
+        P = np.round(R, 2)
+        Q = rotation_preimage(P, 2, rng, signed_zero=True)
+        assert np.array_equal(np.round(Q, 2), P)
+        for z in zip(*np.nonzero(P == 0)):
+            below = bool(Q[z] < 0)
+            assert below == bool(np.signbit(P[z])), (z, P[z], Q[z])
+            seen[below] += 1
+    assert seen[True] > 10 and seen[False] > 10, seen  # both signs were exercised
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_pose_distractors_print_zeros_as_the_answers_do(signed):
+    """Level car cameras: the tilt entries round to zero in about a third of the prints. A release whose answers
+    and premises never show -0.0 gets no distractor that does (one would be a distractor by its sign alone); a
+    release that keeps the sign gets distractors with negative zeros at about the answers' rate."""
+    rng = np.random.default_rng(11)
+    rows = []
+    for i in range(120):
+        Rp = Rotation.from_euler("ZYX", [rng.uniform(-180, 180), *rng.normal(0, 0.3, 2)], degrees=True).as_matrix()
+        R = Rotation.from_euler("ZYX", [rng.normal(0, 5), *rng.normal(0, 0.3, 2)], degrees=True).as_matrix() @ Rp
+        tp = rng.uniform(-1000, 1000, 3)
+        w = float(rng.integers(2, 8))
+        t = tp + Rp[:, 0] * np.exp(rng.normal(math.log(9.0), 0.3)) * w
+        P, T = np.eye(4), np.eye(4)
+        P[:3, :3], P[:3, 3], T[:3, :3], T[:3, 3] = Rp, tp, R, t
+        ptxt = V.format_pose(P, 2, compact=True, signed_zero=signed)
+        q = (f"Given the camera pose at t=1 s in the Waymo world coordinate frame: {ptxt}, what is the camera "
+             f"pose in the same coordinate frame at t={1 + w:g} s?")
+        rows.append(_row(i, "Pose Estimation", "Waymo", q, V.format_pose(T, 2, compact=True, signed_zero=signed),
+                         video=f"seg{i // 2}_camera_1.mp4", t0=1 + w, t1=1 + w))
+    out, _, _ = build_options(iface=IFACE, records=rows, seed=0)
+
+    def zeros(text):  # (negative, all) zero entries of a printed pose
+        vals = list(json.loads(text).values())
+        return sum(v == 0 and math.copysign(1.0, v) < 0 for v in vals), sum(v == 0 for v in vals)
+
+    ans = np.sum([zeros(r["Candidates"][r["Answer"]]) for r in out], axis=0)
+    dis = np.sum([zeros(s) for r in out for k, s in r["Candidates"].items() if k != r["Answer"]], axis=0)
+    assert ans[1] > 60 and dis[1] > 240, (ans, dis)  # zeros are common in both
+    if not signed:
+        assert ans[0] == 0 and dis[0] == 0, (ans, dis)
+    else:  # the share of negative zeros among zeros, answers against distractors (two proportions)
+        p1, p2 = ans[0] / ans[1], dis[0] / dis[1]
+        pool = (ans[0] + dis[0]) / (ans[1] + dis[1])
+        assert 0.2 < p1 < 0.8 and abs(p1 - p2) < 3 * math.sqrt(pool * (1 - pool) * (1 / ans[1] + 1 / dis[1])), (ans, dis)
+
+
+def test_pose_tilt_readout_is_the_printed_entry():
+    """The echo readout of the two tilt fields (each drawn alone, the other fields at the answer) is the printed
+    third-row entry of the rotation those fields make: ``r31`` for the first tilt, ``r32`` for the second about a
+    level reference, ``r33`` about an OpenCV camera's -90 degrees (computed here from the rotation itself)."""
+    from resti_lib.geometry.fields import from_yaw_tilt
+    from resti_lib.options.kinds.pose import TILT_FIELDS, PoseKind
+
+    rng = np.random.default_rng(10)
+    up = [0.0, 0.0, 1.0]
+    for tilt_ref, entry in ((0.0, (2, 1)), (-math.pi / 2, (2, 2))):
+        n = 30
+        yaw, b, lean = rng.uniform(-3, 3, n), rng.normal(0, 0.02, n), rng.normal(0, 0.02, n)
+        F = np.zeros((n, 6))
+        F[:, 3], F[:, TILT_FIELDS[0]], F[:, TILT_FIELDS[1]] = yaw, b, lean
+        printed = PoseKind.tilt_readout(F, tilt_ref, [2] * n)
+        draws = rng.normal(0, 0.03, (2, n, 5))  # (reps, rows, candidates) of one field
+        for j, (r, c) in ((TILT_FIELDS[0], (2, 0)), (TILT_FIELDS[1], entry)):
+            got = printed(draws, np.arange(n), j)
+            for q in range(2):
+                for i in range(n):
+                    for k in range(5):
+                        ang = [yaw[i], b[i], lean[i] + tilt_ref]
+                        ang[1 if j == TILT_FIELDS[0] else 2] = draws[q, i, k] + (0.0 if j == TILT_FIELDS[0] else tilt_ref)
+                        R = from_yaw_tilt(ang, up)
+                        want = json.loads(V.format_pose(np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]), 2))
+                        assert got[q, i, k] == pytest.approx(want[f"r{r + 1}{c + 1}"], abs=1e-12)
+
+
 def test_rows_of_one_video_asking_one_answer_share_their_candidates():
     rng = np.random.default_rng(6)
     q = "What is the width of the white refrigerator? (unit: m)"

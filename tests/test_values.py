@@ -130,3 +130,19 @@ def test_adaptive_decimals_for_small_values():
     assert V.adaptive_decimals(0.063) == 3
     assert V.adaptive_decimals(0.0012) == 5
     assert V.adaptive_decimals(0.0) == 2
+
+
+def test_negative_zero_printed_only_where_the_printer_keeps_it():
+    """A rotation entry of -0.001 rounds to -0.0: printed with its sign by default (as v5 Waymo and ScanNet
+    print it), as 0.0 when the release never shows a negative zero (as v5 Omni6DPose answers)."""
+    T = np.eye(4)
+    T[:3, :3] = [[1.0, -0.001, 0.0], [0.001, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = [-0.004, 2.0, 0.0]
+    signed = json.loads(V.format_pose(T, 2, compact=True))
+    plain = V.format_pose(T, 2, compact=True, signed_zero=False)
+    assert '"r12":-0.0' in V.format_pose(T, 2, compact=True) and '"tx":-0.0' in V.format_pose(T, 2, compact=True)
+    assert "-0.0" not in plain and '"r12":0.0' in plain and '"tx":0.0' in plain
+    assert math.copysign(1.0, signed["r12"]) == -1.0 and signed["r21"] == 0.0
+    assert V.prints_negative_zero(list(signed.values()))
+    assert not V.prints_negative_zero(list(json.loads(plain).values()))
+    assert not V.prints_negative_zero([0.0, 1.0, -2.0])  # a negative value is not a negative zero

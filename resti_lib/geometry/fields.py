@@ -18,16 +18,19 @@ def rot(axis, deg: float) -> np.ndarray:
     return Rotation.from_rotvec(a / np.linalg.norm(a) * np.radians(deg)).as_matrix()
 
 
-def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accept=None, tries: int = 3000
-                      ) -> np.ndarray:
+def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accept=None, tries: int = 3000,
+                      signed_zero: bool = False) -> np.ndarray:
     """An exact rotation whose entries print as ``printed`` at ``decimals`` (and that ``accept``
     takes, e.g. its printed heading): every field a perturbation leaves alone then prints exactly
-    as in the answer."""
+    as in the answer. ``signed_zero``: the printer keeps the sign of a zero, so an entry printed ``-0.0``
+    is below zero and one printed ``0.0`` is not."""
     P = np.asarray(printed, float)
     R = nearest_rotation(P)
 
     def ok(Q):
-        return np.array_equal(np.round(Q, decimals), np.round(P, decimals)) and (accept is None or accept(Q))
+        q, p = np.round(Q, decimals), np.round(P, decimals)
+        return (np.array_equal(q, p) and (not signed_zero or np.array_equal(np.signbit(q), np.signbit(p)))
+                and (accept is None or accept(Q)))
 
     if ok(R):
         return R
@@ -36,6 +39,23 @@ def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accep
         Q = Rotation.from_rotvec(rng.normal(0.0, sigma, 3)).as_matrix() @ R
         if ok(Q):
             return Q
+    # none of the draws about the nearest rotation prints so (several entries near a cell's edge, or the sign
+    # of several zeros): a walk that never prints more entries wrong than its last step
+    p = np.round(P, decimals)
+
+    def wrong(Q) -> int:
+        q = np.round(Q, decimals)
+        bad = q != p
+        return int((bad | (np.signbit(q) != np.signbit(p)) if signed_zero else bad).sum())
+
+    Q, bad = R, wrong(R)
+    for k in range(tries):  # steps from the cell's width down to a thirtieth of it, in turn
+        Q1 = Rotation.from_rotvec(rng.normal(0.0, sigma * 0.3 ** (k % 4), 3)).as_matrix() @ Q
+        b1 = wrong(Q1)
+        if b1 <= bad:
+            Q, bad = Q1, b1
+            if bad == 0 and ok(Q):
+                return Q
     return R
 
 

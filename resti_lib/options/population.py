@@ -466,7 +466,7 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
     (the stage's draw without the constraints: spread ``echo["s"]``, quantile lattice ``echo["lattice"]``),
     in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS`; one
     value per field, each field read on its own (``b``: (n, d) base values; ``only``: that field alone is read,
-    the others are left at 0).
+    the others are left at 0, as are the fields ``echo["fields"]`` does not name).
 
     The echo score of a candidate is the density of the other recordings' answers at it over the density of
     their candidates (:func:`resti_lib.options.attacks.prior._answer_echo` reads it the same way, on
@@ -485,7 +485,8 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
     other = g[:, None] != g[None, :]
     ok = other.any(axis=1)
     z = np.zeros(d)
-    for j in range(d) if only is None else [only]:
+    read = range(d) if echo.get("fields") is None else [j for j in echo["fields"] if j < d]
+    for j in read if only is None else [only]:
         # the candidate sets are simulated from the data alone (the rows, not the option seed): the model
         # of a group does not change with the seed the options are drawn with
         # (a one-field group's seed names no field: its simulation is the one it has always been)

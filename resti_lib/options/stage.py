@@ -229,17 +229,18 @@ class Stage:
                               min_rows=int(self.model["min_group"]), groups=[p.spec.obs.sequence for p in plans],
                               **kw)
 
-    def echo_spec(self, lattice=None, offset=None, printed=None) -> dict | None:
+    def echo_spec(self, lattice=None, offset=None, printed=None, fields=None) -> dict | None:
         """How each field's bandwidth of a group is widened against the echo
         (:func:`resti_lib.options.population.echo_balanced`): the neighbour counts tried (``knn``, 1.5 ``knn``,
         ... up to ``model.echo_knn``) and the draw simulated (the spread ``model.s``, the group's ``lattice``,
-        each row's ``offset`` back to the printed scale and ``printed``, the values a reader sees); None
-        when ``model.echo_knn`` is not above ``knn`` (the likelihood's count)."""
+        each row's ``offset`` back to the printed scale and ``printed``, the values a reader sees); ``fields``:
+        the fields read (None: all; the others keep the likelihood's count); None when ``model.echo_knn`` is
+        not above ``knn`` (the likelihood's count)."""
         k, top = int(self.model["knn"]), int(self.model.get("echo_knn") or 0)
         if top <= k:
             return None
         return {"ladder": knn_ladder(k, top), "s": float(self.model["s"]), "lattice": lattice,
-                "offset": offset, "printed": printed}
+                "offset": offset, "printed": printed, "fields": None if fields is None else sorted(fields)}
 
     def draw(self, gm: GroupModel, rid: str, cells: list, s: float, rng, bounds: list | None = None,
               **kw) -> np.ndarray:

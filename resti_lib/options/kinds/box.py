@@ -143,7 +143,7 @@ class BoxKind(KindBuilder):
             cells += [(ld[j] - hd[j], ld[j] + hd[j]) for j in range(3)]
             if up_axis is not None:
                 y = float(on_cut_line(info["yaw0"][p.rid], info["cut"]))
-                cells.append((y - 0.005, y + 0.005))
+                cells.append((y, y))  # the preimage's heading: a point of its printed cell (pose.ANCHOR)
             B = st.draw(gm, p.rid, cells, s, rng, n=4)
             centres = np.array([centre_from_fields(b[:3], mode, info["power"]) for b in B])
         else:  # a centre behind the camera: exchangeable cartesian shifts

@@ -29,6 +29,15 @@ from ..spec import (
 )
 from . import KindBuilder, register_kind
 
+TILT_FIELDS = (4, 5)   # a non-relative pose's fields: motion (3), turn, the two tilts
+
+# ANCHOR: a distractor draw is anchored at the answer's score, drawn uniformly over the answer's printed cell in
+# each field. A field read from the rotation's preimage (:func:`~resti_lib.geometry.fields.rotation_preimage`) is
+# already a point drawn in that cell, so it anchors at that point (a cell of zero width): a cell around it would
+# spread the anchor over two printed cells. On v5 Waymo (seed 1) that wider anchor left the answers' tilt entries
+# where the other recordings' candidates crowd more than their answers (echo z -3.6 to -5.2, pooled; -0.5 to -2.4
+# at the point).
+
 
 def time_sign(o) -> float:
     """-1 for a target time before the premise's (the motion from the premise runs backwards), else 1:
@@ -80,13 +89,17 @@ class PoseKind(KindBuilder):
         # the second tilt is centred on the group's circular mean (an OpenCV camera's is near -90 deg)
         tilts = np.array([yaw_tilt(p.spec.value.R, up)[2] for p in ps])
         info["tilt_ref"] = float(np.arctan2(np.sin(tilts).mean(), np.cos(tilts).mean())) if len(tilts) else 0.0
+        # zeros keep their sign in print only where the group's answers (or premises) ever show a -0.0
+        info["signed_zero"] = V.prints_negative_zero(
+            [p.spec.value.vector() for p in ps] +
+            [np.asarray(p.spec.obs.premise, float)[:3].ravel() for p in ps if p.spec.obs.premise_text is not None])
         ts = np.array([p.spec.value.t for p in ps], float)
         info["t_decimals"] = [recorded_decimals(ts[:, j], ps[0].spec.decimals) for j in range(3)]
         F, Hh, W = [], [], []
         for p in ps:
             v: V.Pose = p.spec.value
             o = p.spec.obs
-            R0 = rotation_preimage(v.R, v.decimals, row_rng(st.seed, p.rid, "preimage"))
+            R0 = rotation_preimage(v.R, v.decimals, row_rng(st.seed, p.rid, "preimage"), signed_zero=info["signed_zero"])
             info["R0"][p.rid] = R0
             win = o.window_s if (o.window_s and o.window_s > 0) else 1.0
             info["win"][p.rid] = win
@@ -121,10 +134,34 @@ class PoseKind(KindBuilder):
                 row[1] = float(on_cut_line(row[1], info["cut_az"]))
                 row[5] = float(on_cut_line(row[5], info["cut"]))
         F, Hh, W = np.array(F, float), np.array(Hh, float), np.array(W, float)
-        fm = st.fit_fields(ps, F, Hh, W if np.isfinite(W).all() else None,
+        # the tilts are read where a reader sees them: the printed entries they move alone
+        echo = None if relative else st.echo_spec(None, None, self.tilt_readout(F, info["tilt_ref"], [
+            p.spec.value.decimals for p in ps]), fields=TILT_FIELDS)
+        fm = st.fit_fields(ps, F, Hh, W if np.isfinite(W).all() else None, echo=echo,
                            prior_sd=([0.2, 20.0, 20.0, 5.0, 5.0, 10.0] if relative else
                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
+
+    @staticmethod
+    def tilt_readout(F, tilt_ref: float, decimals):
+        """The echo readout of the two tilt fields (:data:`TILT_FIELDS`, drawn alone, the other fields at the
+        row's answer): the up components of the camera's axes that each moves, rounded as the row prints
+        them. With ``R = A^T Rz(yaw) Ry(b) Rx(c)`` those are ``(-sin b, cos b sin c, cos b cos c)``, free of the
+        heading, and they are printed entries (the third row) when the world's up is a world axis: the first
+        tilt is read as ``-sin b``, the second as whichever of the other two it moves more at ``tilt_ref``."""
+        b_rows = np.asarray(F, float)[:, TILT_FIELDS[0]]
+        scale = 10.0 ** np.asarray(decimals, float)
+        second = np.sin if abs(np.cos(tilt_ref)) >= abs(np.sin(tilt_ref)) else np.cos
+
+        def printed(c, sel, j):
+            if j == TILT_FIELDS[0]:
+                u = -np.sin(c)
+            else:
+                u = np.cos(b_rows[sel])[None, :, None] * second(c + tilt_ref)
+            k = scale[sel][None, :, None]
+            return np.round(u * k) / k
+
+        return printed
 
     @staticmethod
     def translation_fields(d, half: float, rate: bool) -> tuple[list[float], list[float]]:
@@ -184,7 +221,7 @@ class PoseKind(KindBuilder):
         if n_draw and info["relative"]:
             G = info["gaze"]
             f0 = gaze_fields(R0, t0, G)
-            hh = shell_half_cells(f0, h_t) + [0.3, 0.3, 0.3]
+            hh = shell_half_cells(f0, h_t) + [0.0] * 3  # the rotation's fields: the preimage's point (ANCHOR)
             f0[1] = float(on_cut_line(f0[1], info["cut_az"]))
             f0[5] = float(on_cut_line(f0[5], info["cut"]))
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
@@ -196,20 +233,20 @@ class PoseKind(KindBuilder):
                 T = np.eye(4)
                 T[:3, :3] = R
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
-                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact, signed_zero=info["signed_zero"]))
         elif n_draw:
             _, tp, Hf, yaw_p = info["frame"][p.rid]
             up = np.asarray(st.params["kinds"]["pose"]["world_up"], float)
             f_t, h_f = self.translation_fields(Hf.T @ (t0 - tp) / scale, h_t / abs(scale), info["rate"])
             f0 = np.concatenate([f_t, self.rotation_fields(R0, yaw_p, sign, up, info["tilt_ref"])])
-            hh = [*h_f] + [h_t] * 3
+            hh = [*h_f] + [0.0] * 3  # the rotation's fields: the preimage's point (see ANCHOR)
             B = st.draw(gm, p.rid, [(f0[j] - hh[j], f0[j] + hh[j]) for j in range(6)], s, rng, n=n_draw)
             for b in B:
                 T = np.eye(4)
                 T[:3, :3] = self.rotation_of(b[3:6], yaw_p, sign, up, info["tilt_ref"])
                 t = tp + Hf @ (self.translation_of(b[:3], h_t / abs(scale), info["rate"]) * scale)
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
-                strings.append(V.format_pose(T, v.decimals, compact=v.compact))
+                strings.append(V.format_pose(T, v.decimals, compact=v.compact, signed_zero=info["signed_zero"]))
         self.check(st, p, [V.parse(t) for t in strings] + [v])
         return strings + [spec.detail]
 
