@@ -18,6 +18,9 @@ def rot(axis, deg: float) -> np.ndarray:
     return Rotation.from_rotvec(a / np.linalg.norm(a) * np.radians(deg)).as_matrix()
 
 
+PREIMAGE_BATCH = 64   # perturbations of a rotation drawn and printed at once
+
+
 def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accept=None, tries: int = 3000,
                       signed_zero: bool = False) -> np.ndarray:
     """An exact rotation whose entries print as ``printed`` at ``decimals`` (and that ``accept``
@@ -27,18 +30,22 @@ def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accep
     P = np.asarray(printed, float)
     R = nearest_rotation(P)
 
-    def ok(Q):
+    def prints(Q):  # (..., 3, 3) -> (...) whether each prints as P
         q, p = np.round(Q, decimals), np.round(P, decimals)
-        return (np.array_equal(q, p) and (not signed_zero or np.array_equal(np.signbit(q), np.signbit(p)))
-                and (accept is None or accept(Q)))
+        same = (q == p).all(axis=(-2, -1))
+        return same & (np.signbit(q) == np.signbit(p)).all(axis=(-2, -1)) if signed_zero else same
+
+    def ok(Q):
+        return bool(prints(Q)) and (accept is None or accept(Q))
 
     if ok(R):
         return R
     sigma = 0.6 * 10.0 ** -decimals
-    for _ in range(tries):
-        Q = Rotation.from_rotvec(rng.normal(0.0, sigma, 3)).as_matrix() @ R
-        if ok(Q):
-            return Q
+    for s in range(0, tries, PREIMAGE_BATCH):  # the draws in batches, tried in their order
+        Qs = Rotation.from_rotvec(rng.normal(0.0, sigma, (min(PREIMAGE_BATCH, tries - s), 3))).as_matrix() @ R
+        for i in np.flatnonzero(prints(Qs)):
+            if accept is None or accept(Qs[i]):
+                return Qs[i]
     # none of the draws about the nearest rotation prints so (several entries near a cell's edge, or the sign
     # of several zeros): a walk that never prints more entries wrong than its last step
     p = np.round(P, decimals)
