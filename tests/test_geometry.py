@@ -398,3 +398,28 @@ def test_shell_fields_by_hand_and_the_gaze_fields_round_trip():
     R = np.column_stack([x, np.cross(a, x), a])
     R2, C2 = from_gaze_fields(gaze_fields(R, C, G), G)
     assert np.allclose(C2, C) and np.allclose(R2, R)
+
+
+def test_concentrated_axis_by_hand():
+    """Rotations whose column 1 is +-(0, -0.6, -0.8) (the sign flips: an axial direction) and whose other two
+    columns turn freely about it: column 1 is the concentrated axis (its mean outer product has eigenvalue 1),
+    the others share the plane (eigenvalues 1/2 each, by symmetry)."""
+    from scipy.spatial.transform import Rotation
+
+    from resti_lib.geometry.fields import concentrated_axis
+
+    u = np.array([0.0, -0.6, -0.8])
+    v = np.cross(u, [1.0, 0.0, 0.0])
+    v /= np.linalg.norm(v)
+    w = np.cross(u, v)
+    Rs = []
+    for k, a in enumerate(np.linspace(0, 2 * np.pi, 40, endpoint=False)):
+        s = 1.0 if k % 2 else -1.0
+        x = np.cos(a) * v + np.sin(a) * w
+        Rs.append(np.column_stack([x, s * u, np.cross(x, s * u)]))
+    assert all(abs(np.linalg.det(R) - 1) < 1e-9 for R in Rs)
+    assert concentrated_axis(Rs) == 1
+    # the same set with its axes renamed (column 1 moved to column 2): the answer follows the column
+    assert concentrated_axis([R[:, [0, 2, 1]] @ np.diag([1, 1, -1]) for R in Rs]) == 2
+    # isotropic rotations: no axis stands out, but one is returned
+    assert concentrated_axis(Rotation.random(50, random_state=1).as_matrix()) in (0, 1, 2)

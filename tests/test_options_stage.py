@@ -18,9 +18,11 @@ from scipy.stats import binomtest, chisquare, norm
 
 from resti_lib import LETTERS
 from resti_lib import values as V
+from resti_lib.errors import InputError
 from resti_lib.geometry.fields import rotation_preimage
 from resti_lib.options.attacks import attack_table
 from resti_lib.options.checks import ROW_CHECKS, parse_row
+from resti_lib.options.spec import Interface, deep_merge
 from resti_lib.options.stage import build_options
 from resti_lib.options.structural import STRUCTURAL_REASONS, evaluation_subset, residual_ids, structural_leaks
 from resti_lib.tasks import interface as _interface
@@ -192,6 +194,68 @@ def _box_rows(n=160, seed=3):
                          video=f"scene{i:04d}_00.mp4", t0=float(i), t1=float(i)))
         logd.append(ld)
     return rows, np.array(logd), cov
+
+
+def _desk_object_rows(n=160, seed=12):
+    """Objects standing on a desk (their +Y axis along the desk's normal, turned at random about it) seen by
+    cameras looking down at 30-60 degrees: in the OpenCV camera frame the object's +Y axis points up the image
+    and towards the camera, ``(0, -cos e, -sin e)`` for elevation ``e``. Returns the rows and the elevations."""
+    rng = np.random.default_rng(seed)
+    rows, elev = [], []
+    for i in range(n):
+        e = rng.uniform(30, 60)
+        # world: object y-up; camera: pitched down by e (OpenCV axes), the object turned by a random yaw
+        R = (Rotation.from_euler("x", -e, degrees=True)
+             * Rotation.from_euler("y", rng.uniform(-180, 180), degrees=True)).as_matrix()
+        R = Rotation.from_euler("x", 180, degrees=True).as_matrix() @ R  # world y-up -> camera y-down
+        c = [rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1), rng.uniform(0.5, 1.2)]
+        q = (f"At zero-based source frame {i} (30 FPS; video timestamp {i / 30:.6f} seconds), what is the "
+             f"oriented 3D bounding box of the small mug in the OpenCV camera frame (+X right, +Y down, +Z forward)?")
+        rows.append(_row(i, "3D Video Grounding", "Omni6DPose", q, V.format_box(c, rng.uniform(0.08, 0.2, 3), R),
+                         video=f"desk{i:04d}.mp4", t0=i / 30, t1=i / 30))
+        elev.append(e)
+    return rows, np.array(elev)
+
+
+@pytest.mark.parametrize("up_axis", ["auto", None])
+def test_desk_objects_turn_about_their_up_axis(up_axis):
+    """A reader who knows the law of the object's up axis in the camera frame (its angle from the image's up and
+    towards the camera is the camera's elevation, 30-60 degrees) takes the candidate whose +Y axis is most
+    nearly at that angle. With the axis found from the answers (``auto``: the most concentrated box axis) the
+    distractors turn about the answer's own up axis and that reader is at chance; turned isotropically (null),
+    the distractors tilt off the desk and the same reader finds the answer."""
+    from resti_lib.geometry.fields import concentrated_axis
+
+    rows, elev = _desk_object_rows()
+    assert concentrated_axis([V.parse(r["Answer Detail"]).R for r in rows]) == 1
+    iface = Interface(deep_merge(IFACE.options, {"kinds": {"box": {"up_axis": {"Omni6DPose": up_axis}}}}), IFACE.tasks)
+    out, _, _ = build_options(iface=iface, records=rows, seed=0)
+    hits = 0.0
+    for r in out:
+        # the +Y axis's elevation towards the camera and up the image: asin of its -Z component over cos of the
+        # angle out of the image's vertical plane; the law's density is flat on 30-60 and falls off outside
+        score = {}
+        for k, s in r["Candidates"].items():
+            y = np.array(V.parse(s).R)[:, 1]
+            e = math.degrees(math.atan2(-y[2], -y[1])) if -y[1] > 0 else -90.0
+            side = abs(y[0])
+            score[k] = -(max(0.0, 30 - e, e - 60) + 100 * side)
+        best = max(score.values())
+        tied = [k for k, v in score.items() if v == best]
+        hits += (r["Answer"] in tied) / len(tied)
+    p = binomtest(int(round(hits)), len(out), 0.2, alternative="greater").pvalue
+    if up_axis == "auto":
+        assert p > 0.01, hits / len(out)
+    else:
+        assert p < 1e-3, hits / len(out)
+
+
+def test_box_up_axis_param_is_refused_by_name():
+    rows, _ = _desk_object_rows(n=30)
+    iface = Interface(deep_merge(IFACE.options, {"kinds": {"box": {"up_axis": {"Omni6DPose": 5}}}}), IFACE.tasks)
+    with pytest.raises(InputError) as e:
+        build_options(iface=iface, records=rows, seed=0)
+    assert e.value.field == "kinds.box.up_axis.Omni6DPose" and "options.yaml" in str(e.value)
 
 
 def test_box_edges_drawn_jointly():
@@ -679,7 +743,6 @@ def test_adversarial_filter_reads_but_does_not_score_structural_rows():
     cannot mend the leak and would hide it from the check. The filter scores the other rows only,
     finds nothing, and redraws nothing."""
     from resti_lib.options.attacks import ATTACKS, attack
-    from resti_lib.options.spec import Interface, deep_merge
 
     q = "By how many degrees did the camera's heading change between t=0 s and t=5 s? (unit: °)"
     near = [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.05, -0.05, 0.15, -0.15, 0.35]
@@ -744,7 +807,6 @@ def test_adversarial_filter_redraws_the_rows_a_discriminator_identifies():
     draws new distractors for exactly the rows it identified (letters kept, every requirement met), and
     records its rounds; rows it did not identify keep their candidates."""
     from resti_lib.options.attacks import ATTACKS, attack
-    from resti_lib.options.spec import Interface, deep_merge
 
     rows, _ = _displacement_rows(n=120, seed=4)
 
@@ -828,7 +890,6 @@ def test_adversarial_filter_names_a_leak_its_redraws_keep():
     (after a redraw it takes the largest candidate): the redrawn rows are at chance and the filter
     stops ``at chance`` with no leak named."""
     from resti_lib.options.attacks import ATTACKS, attack
-    from resti_lib.options.spec import Interface, deep_merge
     from resti_lib.release.reoption import filter_summary
 
     rows, _ = _displacement_rows(n=120, seed=4)

@@ -10,11 +10,20 @@ from scipy.stats import spearmanr
 
 from ... import values as V
 from ...errors import InputError
-from ...geometry.fields import box_yaw, centre_fields, centre_from_fields, centre_half_cells, rot, rotation_preimage
+from ...geometry.fields import (
+    box_yaw,
+    centre_fields,
+    centre_from_fields,
+    centre_half_cells,
+    concentrated_axis,
+    rot,
+    rotation_preimage,
+)
 from ...rng import row_rng
 from ..plan import GroupModel, Reject, RowPlan, recorded_decimals
 from ..population import circular_cut, from_cut_line, hierarchical_offsets, on_cut_line
 from ..spec import (
+    OPTION_PARAMS,
     box_floors,
     box_separation,
     per_source,
@@ -55,7 +64,11 @@ class BoxKind(KindBuilder):
         src = ps[0].spec.source
         mode = per_source(kp["centre"], src, "projective")
         up_axis = per_source(kp["up_axis"], src, None)
-        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "up_axis": up_axis}
+        if up_axis not in (None, 0, 1, 2, "auto") or isinstance(up_axis, bool):
+            raise InputError(f"kinds.box.up_axis for {src} is {up_axis!r}: a box axis 0, 1 or 2, 'auto' (the axis "
+                             "most concentrated over the group's answers) or null (isotropic rotations)",
+                             file=OPTION_PARAMS, field=f"kinds.box.up_axis.{src}")
+        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}}
         cs = np.array([p.spec.value.center for p in ps], float)
         ds = np.array([p.spec.value.lwh for p in ps], float)
         front = cs[:, 2] > 0
@@ -79,6 +92,9 @@ class BoxKind(KindBuilder):
             info["R0"][p.rid] = R0
             lds.append(np.log(np.maximum(np.array(v.lwh, float), 1e-4)))
         lds = np.array(lds)
+        if up_axis == "auto":
+            up_axis = concentrated_axis([info["R0"][p.rid] for p in ps])
+        info["up_axis"] = up_axis
         coff = hierarchical_offsets([(p.spec.obs.subject_class,) for p in ps], lds, st.model["class_shrink"])
         cut = None
         if up_axis is not None:
