@@ -423,3 +423,31 @@ def test_concentrated_axis_by_hand():
     assert concentrated_axis([R[:, [0, 2, 1]] @ np.diag([1, 1, -1]) for R in Rs]) == 2
     # isotropic rotations: no axis stands out, but one is returned
     assert concentrated_axis(Rotation.random(50, random_state=1).as_matrix()) in (0, 1, 2)
+
+
+def test_level_rotation_finds_the_down_of_level_cameras():
+    """Cameras held level (x axis horizontal, any heading, any pitch) seen from a reference camera pitched 40
+    degrees down: in the reference frame the true down is (0, cos 40, -sin 40) (OpenCV: +Y down, +Z forward; a
+    camera pitched down sees the down direction tilted away from it). The levelling rotation takes that
+    direction to +Y, and then every camera's x axis has no +Y component; cameras with their x axes in every
+    direction give the identity."""
+    from scipy.spatial.transform import Rotation
+
+    from resti_lib.geometry.fields import level_rotation
+
+    rng = np.random.default_rng(3)
+    pitch = math.radians(40.0)
+    down = np.array([0.0, math.cos(pitch), -math.sin(pitch)])
+    # level x axes: unit vectors perpendicular to the down direction
+    e1 = np.array([1.0, 0.0, 0.0])
+    e2 = np.cross(down, e1)
+    xs = [math.cos(a) * e1 + math.sin(a) * e2 for a in rng.uniform(0, 2 * np.pi, 40)]
+    A = level_rotation(xs)
+    assert np.allclose(A @ A.T, np.eye(3)) and np.linalg.det(A) > 0
+    assert np.allclose(A @ down, [0.0, 1.0, 0.0], atol=1e-9)
+    assert max(abs(float((A @ x)[1])) for x in xs) < 1e-9
+    # a reference camera already level: the identity (its +Y is the down)
+    flat = [np.array([math.cos(a), 0.0, math.sin(a)]) for a in rng.uniform(0, 2 * np.pi, 40)]
+    assert np.allclose(level_rotation(flat), np.eye(3), atol=1e-9)
+    # x axes in every direction: no down stands out
+    assert np.array_equal(level_rotation(Rotation.random(60, random_state=2).as_matrix()[:, :, 0]), np.eye(3))

@@ -115,16 +115,23 @@ def _field_rate(batch: Batch):
     return _halves(batch, ("",), lambda train, test: {"": _field_scores(batch, train, test)})
 
 
-def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]:
+JOINT_NEIGHBOURS = 10  # training candidates nearest a candidate, all its printed fields at once
+
+
+def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict, dict]:
     """Per test row of a cell of structured answers (boxes, poses: every candidate prints the same fields):
     the sum over the fields of the log kernel density of the candidate's field value among the training
-    rows' answers (``density``), and of its ratio to the density among their candidates (``ratio``)."""
+    rows' answers (``density``), and of its ratio to the density among their candidates (``ratio``); and,
+    every field at once, the share of answers among the :data:`JOINT_NEIGHBOURS` training candidates nearest
+    it (``joint``: each field in units of its spread over the training candidates). Fields that match the
+    answers' one by one can still combine where no answer is (a camera's turn and its roll about a desk):
+    the joint share reads that."""
     vecs = batch.memo("prior_vectors", lambda: [
         np.array([p.values[k].vector() for k in LETTERS], float)
         if all(isinstance(v, (V.Box, V.Pose)) for v in p.values.values())
         and len({len(v.vector()) for v in p.values.values()}) == 1 else None for p in batch.rows])
     cell = lambda i: (batch.rows[i].task, batch.rows[i].source, vecs[i].shape[1]) if vecs[i] is not None else None
-    density, ratio = {}, {}
+    density, ratio, joint = {}, {}, {}
     pool: dict = {}
     for i in train:
         if cell(i) is not None:
@@ -143,19 +150,28 @@ def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict]
             fc = np.exp(-0.5 * ((T[:, :, f, None] - C[:, :, f].ravel()[None, None, :]) / h) ** 2).mean(-1)
             logd += np.log(fa + 1e-12)
             logr += np.log(fa + 1e-12) - np.log(fc + 1e-12)
+        flat = C.reshape(-1, C.shape[2])
+        is_answer = np.zeros(C.shape[:2], bool)
+        is_answer[np.arange(len(idx)), [LETTERS.index(batch.rows[i].answer) for i in idx]] = True
+        sd = np.maximum(flat.std(axis=0), 1e-9)
+        k_near = min(JOINT_NEIGHBOURS, len(flat))
         for r, i in enumerate(rows):
             density[i] = {k: float(logd[r, q]) for q, k in enumerate(LETTERS)}
             ratio[i] = {k: float(logr[r, q]) for q, k in enumerate(LETTERS)}
-    return density, ratio
+            d = (((T[r][:, None, :] - flat[None, :, :]) / sd) ** 2).sum(-1)       # (5, m*5)
+            near = np.argsort(d, axis=1, kind="stable")[:, :k_near]
+            joint[i] = {k: float(is_answer.ravel()[near[q]].mean()) for q, k in enumerate(LETTERS)}
+    return density, ratio, joint
 
 
 @attack("field_density", ["box", "pose"], "box or pose whose printed fields are most (or least) typical, field by "
         "field, of the answers of the other half of the recordings of the task/source cell (log kernel density "
-        "summed over the fields, or its ratio to the density of their candidates; in every direction)",
+        "summed over the fields, or its ratio to the density of their candidates), or all fields at once (the "
+        "share of answers among its nearest candidates there; in every direction)",
         family="prior", scope="batch")
 def _field_density(batch: Batch):
-    return _halves(batch, ("density", "ratio"),
-                   lambda train, test: dict(zip(("density", "ratio"), _field_densities(batch, train, test))))
+    return _halves(batch, ("density", "ratio", "joint"),
+                   lambda train, test: dict(zip(("density", "ratio", "joint"), _field_densities(batch, train, test))))
 
 
 def _scaled(batch: Batch) -> tuple[list, object]:

@@ -13,6 +13,7 @@ from ...geometry.fields import (
     gaze_depth,
     gaze_fields,
     horizontal_frame,
+    level_rotation,
     rotation_preimage,
     shell_half_cells,
     yaw_tilt,
@@ -118,12 +119,13 @@ class PoseKind(KindBuilder):
                 F.append([*f_t, *self.rotation_fields(R0, info["frame"][p.rid][3], sign, up, info["tilt_ref"])])
                 Hh.append([*h_f] + [h_t] * 3)
             W.append([log_window(p.spec)])
-        if relative:  # cameras looking at a desk: drawn around the gaze point they share
+        if relative:  # cameras looking at a desk: drawn around the gaze point they share, in a levelled frame
             depths = np.array([gaze_depth(info["R0"][p.rid], p.spec.value.t) for p in ps])
             G = np.array([0.0, 0.0, float(np.nanmedian(depths)) if np.isfinite(depths).any() else 0.5])
-            info["gaze"] = G
+            A = level_rotation([info["R0"][p.rid][:, 0] for p in ps] + [[1.0, 0.0, 0.0]])
+            info["gaze"], info["level"] = A @ G, A
             for p in ps:
-                f = gaze_fields(info["R0"][p.rid], p.spec.value.t, G)
+                f = gaze_fields(A @ info["R0"][p.rid], A @ np.asarray(p.spec.value.t, float), A @ G)
                 F.append(list(f))
                 Hh.append(shell_half_cells(f, 0.5 * 10.0 ** -p.spec.value.decimals) + [0.3, 0.3, 0.3])
             # the azimuth about the gaze point and the roll are circular: each on the line cut where the
@@ -219,8 +221,8 @@ class PoseKind(KindBuilder):
             strings += pick
             n_draw = 4 - len(pick)
         if n_draw and info["relative"]:
-            G = info["gaze"]
-            f0 = gaze_fields(R0, t0, G)
+            G, A = info["gaze"], info["level"]
+            f0 = gaze_fields(A @ R0, A @ t0, G)
             hh = shell_half_cells(f0, h_t) + [0.0] * 3  # the rotation's fields: the preimage's point (ANCHOR)
             f0[1] = float(on_cut_line(f0[1], info["cut_az"]))
             f0[5] = float(on_cut_line(f0[5], info["cut"]))
@@ -230,6 +232,7 @@ class PoseKind(KindBuilder):
                 b[1] = float(from_cut_line(b[1], info["cut_az"]))
                 b[5] = float(from_cut_line(b[5], info["cut"]))
                 R, t = from_gaze_fields(b, G)
+                R, t = A.T @ R, A.T @ t  # back to the reference frame
                 T = np.eye(4)
                 T[:3, :3] = R
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
