@@ -381,3 +381,44 @@ def test_v5_camera_sets_not_shared_across_recordings_and_the_learned_attacker_at
     assert sum(s["Candidates"] is not r["Candidates"] for s, r in zip(shared, speed)) >= 10
     again = cell(shared)
     assert again["significant"] and again["accuracy"] > 0.35
+
+
+def _joint_box_rows(joint: bool, n: int = 300, seed: int = 5):
+    """ScanNet boxes whose answers' centres lie near the line y = -x/2 (x, y each uniform-like over the
+    population). Every candidate's x and y are drawn from the answers' own marginals; a joint plant keeps the
+    distractors' x and y independent (each field as typical as the answer's, the pair off the line), the clean
+    control puts them on the line too."""
+    from resti_lib import values as V
+    from tests.attack_release import _row
+
+    rng = np.random.default_rng(seed)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    rows = []
+    for i in range(n):
+        def box(on_line):
+            x = float(rng.uniform(-1.0, 1.0))
+            y = -0.5 * x + float(rng.normal(0, 0.03)) if on_line else float(-0.5 * rng.uniform(-1.0, 1.0))
+            return V.format_box([x, y, 2.0], [0.8, 0.6, 0.7], R)
+        cands = [box(True)] + [box(not joint) for _ in range(4)]
+        order = rng.permutation(5)
+        letters = {LETTERS[j]: cands[int(k)] for j, k in enumerate(order)}
+        answer = LETTERS[int(np.flatnonzero(order == 0)[0])]
+        q = (f"At {i}.0 seconds, what is the oriented 3D bounding box of the wooden table in the ScanNet OpenCV "
+             "camera frame (+X right, +Y down, +Z forward)?")
+        rows.append(_row("3D Video Grounding", "ScanNet", f"scene{i:04d}_00.mp4", q, letters, answer, i, float(i),
+                         float(i)))
+    return rows
+
+
+@pytest.mark.parametrize("joint", [True, False])
+def test_field_density_reads_fields_jointly(joint):
+    """Each printed field of a distractor as typical as the answer's, the pair not: the joint share of answers
+    among the nearest candidates finds the answer (the cell's best direction is a joint one); on the clean
+    control (the distractors on the answers' line too) nothing is found."""
+    rows = _joint_box_rows(joint)
+    t = attack_table(rows, iface=IFACE, attacks=["field_density"])
+    cell = _cell(t, "field_density", "3D Video Grounding")
+    if joint:
+        assert cell["significant"] and "joint" in str(cell["direction"]) and cell["accuracy"] >= 0.5, cell
+    else:
+        assert not cell["significant"] and cell["p_value"] > 0.01, cell
