@@ -29,32 +29,26 @@ def rotation_preimage(printed, decimals: int, rng: np.random.Generator, *, accep
     is below zero and one printed ``0.0`` is not."""
     P = np.asarray(printed, float)
     R = nearest_rotation(P)
+    p = np.round(P, decimals)
 
-    def prints(Q):  # (..., 3, 3) -> (...) whether each prints as P
-        q, p = np.round(Q, decimals), np.round(P, decimals)
-        same = (q == p).all(axis=(-2, -1))
-        return same & (np.signbit(q) == np.signbit(p)).all(axis=(-2, -1)) if signed_zero else same
+    def wrong(Q):  # (..., 3, 3) -> (...) how many entries of each print otherwise than P's
+        q = np.round(Q, decimals)
+        bad = q != p
+        return (bad | (np.signbit(q) != np.signbit(p)) if signed_zero else bad).sum(axis=(-2, -1))
 
     def ok(Q):
-        return bool(prints(Q)) and (accept is None or accept(Q))
+        return wrong(Q) == 0 and (accept is None or accept(Q))
 
     if ok(R):
         return R
     sigma = 0.6 * 10.0 ** -decimals
     for s in range(0, tries, PREIMAGE_BATCH):  # the draws in batches, tried in their order
         Qs = Rotation.from_rotvec(rng.normal(0.0, sigma, (min(PREIMAGE_BATCH, tries - s), 3))).as_matrix() @ R
-        for i in np.flatnonzero(prints(Qs)):
+        for i in np.flatnonzero(wrong(Qs) == 0):
             if accept is None or accept(Qs[i]):
                 return Qs[i]
     # none of the draws about the nearest rotation prints so (several entries near a cell's edge, or the sign
     # of several zeros): a walk that never prints more entries wrong than its last step
-    p = np.round(P, decimals)
-
-    def wrong(Q) -> int:
-        q = np.round(Q, decimals)
-        bad = q != p
-        return int((bad | (np.signbit(q) != np.signbit(p)) if signed_zero else bad).sum())
-
     Q, bad = R, wrong(R)
     for k in range(tries):  # steps from the cell's width down to a thirtieth of it, in turn
         Q1 = Rotation.from_rotvec(rng.normal(0.0, sigma * 0.3 ** (k % 4), 3)).as_matrix() @ Q

@@ -153,6 +153,7 @@ def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict,
         flat = C.reshape(-1, C.shape[2])
         is_answer = np.zeros(C.shape[:2], bool)
         is_answer[np.arange(len(idx)), [LETTERS.index(batch.rows[i].answer) for i in idx]] = True
+        is_answer = is_answer.ravel()                                           # in the order of ``flat``
         sd = np.maximum(flat.std(axis=0), 1e-9)
         k_near = min(JOINT_NEIGHBOURS, len(flat))
         for r, i in enumerate(rows):
@@ -160,7 +161,7 @@ def _field_densities(batch: Batch, train: list, test: list) -> tuple[dict, dict,
             ratio[i] = {k: float(logr[r, q]) for q, k in enumerate(LETTERS)}
             d = (((T[r][:, None, :] - flat[None, :, :]) / sd) ** 2).sum(-1)       # (5, m*5)
             near = np.argsort(d, axis=1, kind="stable")[:, :k_near]
-            joint[i] = {k: float(is_answer.ravel()[near[q]].mean()) for q, k in enumerate(LETTERS)}
+            joint[i] = {k: float(is_answer[near[q]].mean()) for q, k in enumerate(LETTERS)}
     return density, ratio, joint
 
 

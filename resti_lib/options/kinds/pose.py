@@ -125,7 +125,7 @@ class PoseKind(KindBuilder):
             A = level_rotation([info["R0"][p.rid][:, 0] for p in ps] + [[1.0, 0.0, 0.0]])
             info["gaze"], info["level"] = A @ G, A
             for p in ps:
-                f = gaze_fields(A @ info["R0"][p.rid], A @ np.asarray(p.spec.value.t, float), A @ G)
+                f = self.desk_fields(info, info["R0"][p.rid], p.spec.value.t)
                 F.append(list(f))
                 Hh.append(shell_half_cells(f, 0.5 * 10.0 ** -p.spec.value.decimals) + [0.3, 0.3, 0.3])
             # the azimuth about the gaze point and the roll are circular: each on the line cut where the
@@ -143,6 +143,19 @@ class PoseKind(KindBuilder):
                            prior_sd=([0.2, 20.0, 20.0, 5.0, 5.0, 10.0] if relative else
                                      [0.5, 0.5, 0.2, 0.3, 0.1, 0.1] if not rate else [1.0, 0.3, 0.1, 0.3, 0.1, 0.1]))
         return GroupModel("pose", fm, info)
+
+    @staticmethod
+    def desk_fields(info, R, t) -> np.ndarray:
+        """A desk camera's gaze fields (:func:`~resti_lib.geometry.fields.gaze_fields`) in the group's levelled
+        frame (``info["level"]``, about the levelled gaze point ``info["gaze"]``)."""
+        A = info["level"]
+        return gaze_fields(A @ np.asarray(R, float), A @ np.asarray(t, float), info["gaze"])
+
+    @staticmethod
+    def desk_pose(info, f) -> tuple[np.ndarray, np.ndarray]:
+        """The rotation and centre, in the reference frame, of the desk fields ``f`` (:meth:`desk_fields`)."""
+        R, t = from_gaze_fields(f, info["gaze"])
+        return info["level"].T @ R, info["level"].T @ t
 
     @staticmethod
     def tilt_readout(F, tilt_ref: float, decimals):
@@ -221,8 +234,7 @@ class PoseKind(KindBuilder):
             strings += pick
             n_draw = 4 - len(pick)
         if n_draw and info["relative"]:
-            G, A = info["gaze"], info["level"]
-            f0 = gaze_fields(A @ R0, A @ t0, G)
+            f0 = self.desk_fields(info, R0, t0)
             hh = shell_half_cells(f0, h_t) + [0.0] * 3  # the rotation's fields: the preimage's point (ANCHOR)
             f0[1] = float(on_cut_line(f0[1], info["cut_az"]))
             f0[5] = float(on_cut_line(f0[5], info["cut"]))
@@ -231,8 +243,7 @@ class PoseKind(KindBuilder):
                 b = np.array(b, float)
                 b[1] = float(from_cut_line(b[1], info["cut_az"]))
                 b[5] = float(from_cut_line(b[5], info["cut"]))
-                R, t = from_gaze_fields(b, G)
-                R, t = A.T @ R, A.T @ t  # back to the reference frame
+                R, t = self.desk_pose(info, b)
                 T = np.eye(4)
                 T[:3, :3] = R
                 T[:3, 3] = [round(float(t[j]), info["t_decimals"][j]) for j in range(3)]
