@@ -248,6 +248,10 @@ def test_large_effect_is_the_exact_interval_above_chance(n):
     # an attack of five comparisons needs its interval at 99.8%: P[X >= k] < 0.001
     got5 = large_effects(k, np.full(n + 1, n), np.full(n + 1, 5))
     assert np.array_equal(got5, (binom.sf(k - 1, n, 0.2) < 0.001) & (k / n >= LARGE_EFFECT_AT))
+    # read from the table's p-values (times the comparisons), the flag is the same for independent rows
+    sf = binom.sf(k - 1, n, 0.2)
+    assert np.array_equal(large_effects(k, np.full(n + 1, n), np.ones(n + 1), p_values=sf), want)
+    assert np.array_equal(large_effects(k, np.full(n + 1, n), np.full(n + 1, 5), p_values=np.minimum(1, 5 * sf)), got5)
 
 
 def test_large_effect_needs_rows_and_size():

@@ -2,6 +2,7 @@
 
 import itertools
 import json
+from collections import Counter
 from math import comb
 
 import numpy as np
@@ -18,6 +19,7 @@ from resti_lib.options.attacks import (
     run_picks,
     select,
     tie_aware_p,
+    tie_aware_p_counts,
 )
 from resti_lib.report.statistics import critical_hits, min_detectable_accuracy
 from resti_lib.tasks import interface as _interface
@@ -129,7 +131,9 @@ def test_letter_order_finds_distractors_listed_outwards():
     for i, pos in enumerate([2, 0, 4, 1, 3, 2]):
         vals = [1.2, 1.4, 1.6, 1.8]
         vals.insert(pos, 1.0)
-        rows.append(row(rid=i, cands={k: f"{v:.2f}m" for k, v in zip("ABCDE", vals)}, answer="ABCDE"[pos]))
+        # one recording per row: rows of one recording offering one set, answered at one place, are one draw
+        rows.append(row(rid=i, video=f"scene09{i:02d}_00.mp4", cands={k: f"{v:.2f}m" for k, v in zip("ABCDE", vals)},
+                        answer="ABCDE"[pos]))
     p = picks_of(rows, ["letter_order"], direction="max")
     assert all(p[("letter_order", i)] == r["Answer"] for i, r in enumerate(rows))
     t = attack_table(iface=IFACE, records=rows, attacks=["letter_order"]).set_index("source")
@@ -179,6 +183,86 @@ def _enumerated_p(hits: float, ties: list) -> float:
                                        ([1] * 9, 4.0), ([3, 3, 3, 4, 4, 2, 1], 7 / 3), ([5, 5, 5], 0.6)])
 def test_tie_aware_p_matches_enumeration(ties, hits):
     assert tie_aware_p(hits, ties) == pytest.approx(_enumerated_p(hits, ties), rel=1e-9, abs=1e-12)
+
+
+def _enumerated_p_clusters(hits: float, ties: list, clusters: list) -> float:
+    """P[sum of scores >= hits] by enumerating every hit/miss pattern of the single rows and every place of
+    the answer in each cluster's set (a second method); a cluster is a list of picked place sets."""
+    total = 0.0
+    for places in itertools.product(range(5), repeat=len(clusters)):
+        c_score = sum(sum(1 / len(pk) for pk in cl if u in pk) for u, cl in zip(places, clusters))
+        for pattern in itertools.product([0, 1], repeat=len(ties)):
+            prob, score = 0.2 ** len(clusters), c_score
+            for hit, k in zip(pattern, ties):
+                prob *= (k / 5) if hit else (1 - k / 5)
+                score += hit / k
+            if score >= hits - 1e-9:
+                total += prob
+    return total
+
+
+@pytest.mark.parametrize("ties,clusters,hits", [
+    ([1, 1, 2], [[{0}, {0}], [{1}, {1}, {1}]], 3.0),           # rows of a cluster pick one place: all or none
+    ([1, 3, 5], [[{0}, {1}], [{2, 3}, {2}]], 2.0),             # they pick different places, and ties
+    ([], [[{4}, {4}], [{4}, {4}], [{0}, {0}]], 4.0),           # clusters alone: P = 1 - P[at most one hit] = 0.104
+])
+def test_tie_aware_p_with_clusters_matches_enumeration(ties, clusters, hits):
+    """A cluster of coupled rows is one draw: the answer sits at one of the five places of the set, each
+    with probability 1/5, and each of its rows scores by its own pick at that place."""
+    scores = [[sum(60 // len(pk) for pk in cl if u in pk) for u in range(5)] for cl in clusters]
+    got = tie_aware_p_counts(hits, Counter(ties), scores)
+    assert got == pytest.approx(_enumerated_p_clusters(hits, ties, clusters), rel=1e-9, abs=1e-12)
+    if not ties:
+        assert got == pytest.approx(1 - 0.8 ** 3 - 3 * 0.2 * 0.8 ** 2, rel=1e-9)
+
+
+def _coupled_release(n_rec: int = 40, seed: int = 2):
+    """``n_rec`` recordings of three displacement rows each: a path length, a displacement whose set is the path's
+    times 0.8 (printed to the centimetre, letters shuffled anew) with its answer at the same place, and a row of
+    its own draw. The answer's place is uniform per recording."""
+    rng = np.random.default_rng(seed)
+    rows, place = [], []
+    for r in range(n_rec):
+        base = np.sort(rng.uniform(1.0, 10.0, 5))
+        u = int(rng.integers(5))
+        place.append(u)
+        for j, vals in enumerate((base, 0.8 * base, np.sort(rng.uniform(1.0, 10.0, 5)))):
+            letters = list(rng.permutation(list("ABCDE")))
+            cands = {k: f"{v:.2f}m" for k, v in zip(letters, vals)}
+            ans = letters[u] if j < 2 else letters[int(rng.integers(5))]
+            rows.append(row(video=f"scene{r:04d}_00.mp4", rid=3 * r + j, cands=cands, answer=ans,
+                            question=["What is the path length?", "What is the displacement?",
+                                      "What is the displacement?"][j]))
+    return rows, place
+
+
+def test_coupled_rows_count_as_one_draw():
+    """The path-length row and the scaled displacement row of each recording are one cluster (read from the
+    strings alone), the third row alone; the smallest-candidate rule's p-value is then the binomial over
+    recordings of the pairs' shared hits plus the single rows' hits, summed here by a direct convolution."""
+    from scipy.stats import binom as B
+
+    from resti_lib.options.attacks.batch import make_batch
+
+    rows, place = _coupled_release()
+    batch, _ = make_batch(parse_rows(rows), rows, iface=IFACE)
+    cluster, slots = batch.coupled()
+    assert all(cluster[3 * r] is not None and cluster[3 * r] == cluster[3 * r + 1] for r in range(40))
+    assert len({cluster[3 * r] for r in range(40)}) == 40 and all(cluster[3 * r + 2] is None for r in range(40))
+    for i, r in enumerate(rows):  # the slots order the letters by value
+        vals = {k: float(v[:-1]) for k, v in r["Candidates"].items()}
+        assert slots[i] == "".join(sorted(vals, key=vals.get))
+    t = attack_table(rows, iface=IFACE, attacks=["min"])
+    cell = t[(t["attack"] == "min") & (t["source"] == "ScanNet")].iloc[0]
+    pair_hits = sum(u == 0 for u in place)
+    single_hits = sum(r["Candidates"][r["Answer"]] == min(r["Candidates"].values(), key=lambda v: float(v[:-1]))
+                      for r in rows[2::3])
+    assert cell["hits"] == 2 * pair_hits + single_hits
+    # P[2 X + Y >= hits], X ~ Bin(40, 1/5) pairs, Y ~ Bin(40, 1/5) single rows
+    want = sum(B.pmf(x, 40, 0.2) * B.sf(cell["hits"] - 2 * x - 1, 40, 0.2) for x in range(41))
+    assert cell["p_value"] == pytest.approx(want, rel=1e-9)
+    # not the binomial over 120 independent rows
+    assert cell["p_value"] != pytest.approx(B.sf(cell["hits"] - 1, 120, 0.2), rel=1e-3)
 
 
 def test_holm_by_hand():

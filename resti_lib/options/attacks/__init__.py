@@ -31,4 +31,5 @@ from .scoring import (  # noqa: F401
     strongest,
     summarize_picks,
     tie_aware_p,
+    tie_aware_p_counts,
 )

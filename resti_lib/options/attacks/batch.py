@@ -7,8 +7,12 @@ from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ... import LETTERS
+from ... import values as V
 from ..checks import ParsedRow, parse_row
+from .features import decimals, scalar_or_distance
 
 
 @dataclass
@@ -80,6 +84,114 @@ class Batch:
     def sequences(self) -> dict:
         """Source sequence (the recording, read from the video name) -> row indices."""
         return self.groups(lambda i: self.obs[i].sequence, "sequence")
+
+    def coupled(self) -> tuple[list, list]:
+        """Rows whose candidate sets are one draw, read from the release alone: per row, the id of its
+        cluster (None for a row alone) and its letters in slot order (the order that maps the candidates
+        of every row of the cluster onto each other).
+
+        Two rows of one cell (task, source) and one recording are one draw when their candidates are the
+        same strings (labels aside: every row of a task offers one set of labels), or, for numbers, the same
+        set up to a common factor or a common shift within the printed resolution (:func:`_one_draw`;
+        two independent sets of one recording pass that by chance almost never). An option stage gives such sets to the camera
+        videos of one drive that ask one quantity (one set, letters shuffled) and to rows whose answer follows
+        a sibling's by physics (a path length, the trajectory's total distance: the sibling's set scaled).
+        Their answers then sit at one place of one set, so a rule that reads the values hits all of them or
+        none, and the count of hits is not binomial over rows (:func:`.scoring.tie_aware_p_counts` takes
+        each cluster as one draw). Rows of such a set whose answers sit at different places are a template of
+        options reused across questions, not one draw: a cluster keeps the rows that answer at one place (on
+        independent sets this only makes the test more cautious). Slots: letters by value (numbers), else
+        by string."""
+        return self.memo("coupled", self._coupled)
+
+    def _coupled(self) -> tuple[list, list]:
+        n = len(self.rows)
+        slots = [_slot_order(p) for p in self.rows]
+        cluster: list = [None] * n
+        try:
+            seqs = self.sequences()
+        except ValueError:  # no answer interface: recordings unknown, every row alone
+            return cluster, slots
+        parent = list(range(n))
+
+        def find(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        cells = {i: c for c, idx in self.cells().items() for i in idx}
+        for idx in seqs.values():
+            by_cell: dict = defaultdict(list)
+            for i in idx:
+                by_cell[cells[i]].append(i)
+            for members in by_cell.values():
+                sig = {i: _set_of(self.rows[i], slots[i]) for i in members}
+                for a, i in enumerate(members):
+                    for j in members[a + 1:]:
+                        if _one_draw(sig[i], sig[j]):
+                            parent[find(i)] = find(j)
+        roots: dict = defaultdict(list)
+        for i in range(n):  # a set whose rows answer at different places is a template reused, not one draw
+            p = self.rows[i]
+            roots[(find(i), slots[i].index(p.answer) if p.answer in slots[i] else None)].append(i)
+        for r, idx in roots.items():
+            if len(idx) > 1:
+                for i in idx:
+                    cluster[i] = f"c{r[0]}.{r[1]}"
+        return cluster, slots
+
+
+def _slot_order(p: ParsedRow) -> str:
+    """The row's letters in slot order: by value for numbers (a scalar's value, a trajectory's total
+    distance), else by printed string."""
+    nums = scalar_or_distance(p)
+    if nums is not None:
+        return "".join(sorted(nums, key=lambda k: (nums[k], k)))
+    return "".join(sorted(p.candidates, key=lambda k: (str(p.candidates[k]), k)))
+
+
+def _set_of(p: ParsedRow, order: str) -> tuple | None:
+    """(the set of printed strings, the values in slot order, each value's printed resolution: half its
+    last digit, summed over the moves of a trajectory, the dimensions: a speed and an acceleration asked
+    at one instant are two quantities); None for a label row (rows of one task offer one
+    set of labels, which makes no draw)."""
+    if all(isinstance(v, V.Label) for v in p.values.values()):
+        return None
+    strings = frozenset(str(p.candidates[k]) for k in order)
+    nums = scalar_or_distance(p)
+    if nums is None:
+        return strings, None, None, None
+    x = np.array([float(nums[k]) for k in order])
+    res = np.array([_resolution(p.values[k]) for k in order])
+    dims = {v.dimension if isinstance(v, V.Scalar) else "trajectory" for v in p.values.values()}
+    return strings, x, res, tuple(sorted(dims))
+
+
+def _resolution(v) -> float:
+    if isinstance(v, V.Scalar):
+        return 0.5 * 10.0 ** -v.decimals * v.si_per_unit
+    moves = sum(1 for k, _ in v.segments if k == "move")
+    toks = V.number_tokens(v.text)
+    return moves * 0.5 * 10.0 ** -min((decimals(t) for t in toks), default=0)
+
+
+def _one_draw(a: tuple | None, b: tuple | None) -> bool:
+    """Two rows' sets are one draw: the same strings, or values that one common factor or one common shift
+    maps onto each other, place by place, within their printed resolution."""
+    if a is None or b is None:
+        return False
+    if a[0] == b[0]:
+        return True
+    if a[1] is None or b[1] is None or a[3] != b[3]:
+        return False
+    (_, x, rx, _), (_, y, ry, _) = a, b
+    d = y - x  # a shift b: every place's interval [d - rx - ry, d + rx + ry] holds it
+    if (d - rx - ry).max() <= (d + rx + ry).min() + 1e-12:
+        return True
+    if (x - rx > 0).all() and (y - ry > 0).all():  # a factor: every place's interval of y / x holds it
+        return float(((y - ry) / (x + rx)).max()) <= float(((y + ry) / (x - rx)).min()) + 1e-12
+    return False
 
 
 def record_of(p: ParsedRow) -> dict:

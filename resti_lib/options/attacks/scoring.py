@@ -5,7 +5,9 @@ The table (:func:`attack_table`) has one row per (attack, task, source) and per 
 ``source == "ALL"``: ``n_rows`` (usable rows of the cell), ``coverage`` (fraction the attack applies
 to), ``picked``, ``hits`` (expected hits), ``accuracy`` (hits / picked), ``chance`` (1/5), ``p_value``
 (exact one-sided test of the expected hits under the null that the answer is any of the five options
-with equal probability, see :func:`tie_aware_p`; times the attack's own number of comparisons; exact
+with equal probability, independently across draws, see :func:`tie_aware_p`: rows whose candidate sets are
+one draw, read from the strings, count as one, :meth:`.batch.Batch.coupled`; times the attack's own number
+of comparisons; exact
 when a row's pick reads no answer of a row whose hit is counted with it, approximate for the learned
 attackers, which are fitted out of fold so that rows of one fold read the answers of the others: on a
 re-optioned v5, over 40 redrawn sets of answer letters, the count spread 1.02-1.03 times the binomial
@@ -42,7 +44,8 @@ from .registry import ATTACKS, FAMILIES, Attack, family_of, select
 COLUMNS = ["attack", "family", "task", "source", "n_rows", "coverage", "picked", "hits", "accuracy", "chance",
            "p_value", "p_holm", "significant", "min_detectable", "underpowered", "tied_rows", "direction",
            "large_effect"]
-PICK_COLUMNS = ["attack", "family", "direction", "rid", "task", "source", "pick", "answer", "tied", "hit"]
+PICK_COLUMNS = ["attack", "family", "direction", "rid", "task", "source", "pick", "answer", "tied", "hit", "cluster",
+                "slots"]
 HEADLINE_COLUMNS = ["task", "source", "n_rows", "significant", "attack", "family", "accuracy", "p_value", "p_holm",
                     "significant_attacks", "families", "min_detectable", "underpowered", "large_effect",
                     "large_effects", "large_effect_attacks"]
@@ -94,16 +97,24 @@ def tie_aware_p(hits: float, ties: Iterable[int]) -> float:
     return tie_aware_p_counts(hits, Counter(int(k) for k in ties))
 
 
-def tie_aware_p_counts(hits: float, n: dict) -> float:
-    """:func:`tie_aware_p` from the number of rows of each tie size (``{k: rows picking k letters}``)."""
+def tie_aware_p_counts(hits: float, n: dict, clusters: Iterable = ()) -> float:
+    """:func:`tie_aware_p` from the number of rows of each tie size (``{k: rows picking k letters}``), and
+    ``clusters``: groups of rows whose answers sit at one place of one candidate set (:meth:`.batch.Batch.coupled`),
+    each given as its score in units of 1/60 when the answer is at each of the five places (a length-5
+    sequence); a cluster is one draw (each place with probability 1/5), its rows are not in ``n``."""
     n = {int(k): int(v) for k, v in n.items() if v}
-    if not n:
+    clusters = [np.asarray(c, int) for c in clusters]
+    if not n and not clusters:
         return 1.0
     w_obs = round(hits * 60)
-    if set(n) <= {1}:
+    if set(n) <= {1} and not clusters:
         return binom_p(round(hits), n[1])
     offset = 12 * n.get(5, 0)                       # five-way ties always score 1/5
-    pmf = np.array([1.0])                            # distribution of the k = 2..4 part, in units of 1/60
+    pmf = np.array([1.0])                            # distribution of the k = 2..4 part and the clusters, 1/60 units
+    for c in clusters:
+        part = np.zeros(int(c.max()) + 1)
+        np.add.at(part, c, 0.2)
+        pmf = np.convolve(pmf, part) if len(pmf) * len(part) < 4e7 else _fft_convolve(pmf, part)
     for k in (2, 3, 4):
         nk = n.get(k, 0)
         if not nk:
@@ -127,13 +138,19 @@ def _fft_convolve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def large_effects(hits, picked, factor, *, at: float = LARGE_EFFECT_AT, min_rows: int = LARGE_EFFECT_MIN_ROWS,
-                  level: float = LARGE_EFFECT_LEVEL) -> np.ndarray:
+                  level: float = LARGE_EFFECT_LEVEL, p_values=None) -> np.ndarray:
     """Which cells show a large blind effect: accuracy ``hits / picked`` at least ``at`` on at least
     ``min_rows`` picked rows, with the lower end of the exact two-sided interval at ``level`` (widened to
-    ``1 - (1 - level) / factor`` for an attack of ``factor`` comparisons) above chance."""
+    ``1 - (1 - level) / factor`` for an attack of ``factor`` comparisons) above chance.
+
+    ``p_values``: the cells' exact one-sided p-values, already times ``factor`` (the table's): the interval's
+    lower end lies above chance exactly when that test rejects at ``(1 - level) / 2`` (the exact interval
+    inverts the exact test), and the table's test also counts ties and coupled rows (one draw per cluster)."""
     hits, picked, factor = (np.asarray(x, float) for x in (hits, picked, factor))
     with np.errstate(invalid="ignore", divide="ignore"):
         acc = np.where(picked > 0, hits / np.maximum(picked, 1), 0.0)
+    if p_values is not None:
+        return (picked >= min_rows) & (acc >= at) & (np.asarray(p_values, float) < (1.0 - level) / 2.0)
     lo = np.zeros(len(hits))
     ok = picked > 0
     if ok.any():
@@ -180,13 +197,14 @@ def picks_frame(batch: Batch, name: str, picks, family: str | None = None) -> pd
     family = family or family_of(name)
     parts = [(direction_name(d), pk) for d, pk in picks.items()] if isinstance(picks, Directional) else [("", picks)]
     applies = {batch.rows[i].task for _, pk in parts for i, x in enumerate(pk) if x is not None}
+    cluster, slots = batch.coupled()
     recs = []
     for d, pk in parts:
-        for p, x in zip(batch.rows, pk):
+        for i, (p, x) in enumerate(zip(batch.rows, pk)):
             if p.task not in applies:
                 continue
             recs.append((name, family, d, p.rid, p.task, p.source, _pick_text(x), p.answer, len(x) if x else 0,
-                         expected_hit(x, p.answer) if x else float("nan")))
+                         expected_hit(x, p.answer) if x else float("nan"), cluster[i], slots[i]))
     return pd.DataFrame.from_records(recs, columns=PICK_COLUMNS)
 
 
@@ -264,7 +282,11 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     agg = agg[agg["picked"] > 0].sort_values("_order", kind="stable")
     agg["_factor"] = agg["attack"].map(lambda n: tests.get(n, 1)) * agg["_options"]
     ties = agg[[f"t{k}" for k in _TIES]].to_numpy(int)
-    p = [tie_aware_p_counts(h, dict(zip(_TIES, t))) for h, t in zip(agg["hits"], ties)]
+    clusters = _cluster_scores(picks, agg)
+    p = []
+    for r, (h, t) in enumerate(zip(agg["hits"], ties)):
+        cl, out = clusters.get(r, ([], {}))
+        p.append(tie_aware_p_counts(h, {k: v - out.get(k, 0) for k, v in zip(_TIES, t)}, cl))
     family = picks.drop_duplicates("attack").set_index("attack")["family"]
     df = pd.DataFrame({"attack": agg["attack"].to_numpy(), "family": agg["attack"].map(family).to_numpy(),
                        "task": agg["task"].to_numpy(), "source": agg["source"].to_numpy(),
@@ -286,10 +308,45 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     df = df.sort_values(["_t", "_a", "_s"], kind="stable").drop(columns=["_a", "_t", "_s"]).reset_index(drop=True)
     df["p_holm"] = holm_adjusted(df["p_value"])
     df["significant"] = df["p_holm"] <= alpha
-    df["large_effect"] = large_effects(df["hits"], df["picked"], df["_factor"])
+    df["large_effect"] = large_effects(df["hits"], df["picked"], df["_factor"], p_values=df["p_value"])
     power = attack_power(df["n_rows"], len(df), alpha=alpha, underpowered_at=UNDERPOWERED_AT)
     df = df.merge(power[["n_rows", "min_detectable", "underpowered"]], on="n_rows", how="left")
     return df[COLUMNS]
+
+
+def _cluster_scores(picks: pd.DataFrame, agg: pd.DataFrame) -> dict:
+    """Per position ``r`` of the table's cells ``agg`` (after the choice of direction): the clusters of
+    coupled rows it holds (two or more picked rows of one cluster, :meth:`.batch.Batch.coupled`), each as
+    its score in units of 1/60 at each of the five places of the set, and how many of the cell's picked rows
+    of each tie size they take. A picks table without clusters (rows given without their batch) gives none;
+    nor does the pooled constant letter, whose count is the best letter's over the task."""
+    if "cluster" not in picks.columns or "slots" not in picks.columns:
+        return {}
+    c = picks[picks["_picked"] & picks["cluster"].notna() & picks["slots"].notna()]
+    if not len(c):
+        return {}
+    by_cell = {key: g for key, g in c.groupby(["attack", "task", "source", "direction"], sort=False)}
+    by_task = {key: g for key, g in c.groupby(["attack", "task", "direction"], sort=False)}
+    out = {}
+    for r, (a, t, src, d) in enumerate(zip(agg["attack"], agg["task"], agg["source"], agg["direction"])):
+        if src == "ALL" and a == "constant_letter":
+            continue
+        g = by_task.get((a, t, d)) if src == "ALL" else by_cell.get((a, t, src, d))
+        if g is None:
+            continue
+        scores, taken = [], Counter()
+        for _, rows in g.groupby("cluster", sort=False):
+            if len(rows) < 2:
+                continue
+            sc = np.zeros(5, int)
+            for pick, slots in zip(rows["pick"], rows["slots"]):
+                for letter in pick:
+                    sc[slots.index(letter)] += 60 // len(pick)
+                taken[len(pick)] += 1
+            scores.append(sc)
+        if scores:
+            out[r] = (scores, dict(taken))
+    return out
 
 
 def attack_table(records: list[dict], *, iface=None, families=None, alpha: float = 0.05, fast: bool = False,
