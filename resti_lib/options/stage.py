@@ -422,7 +422,8 @@ class Stage:
         ``adversarial.attacks``: learned out of fold by recording, and the priors learned on the other
         half of the recordings) on the rows no structural leak touches
         (:func:`resti_lib.options.structural.residual_ids`; every row stays readable): in every
-        task/source cell where one of them is significant (Holm over the cells at ``alpha``), the rows
+        task/source cell where one of them is significant (the suite's exact test,
+        :func:`.attacks.scoring.cell_tests`; Holm over the cells at ``alpha``), the rows
         it identifies (its one pick is the answer) get their
         distractors drawn again (a new stream of their RNG; the letters stay); then the check runs
         again, at most ``rounds`` times (the work, and so the time, is bounded by the rounds, not by a
@@ -436,17 +437,12 @@ class Stage:
         cells that named them (Holm over those cells); where they are still significant, the filter
         stops with ``draw leaks`` and names the cells (``draw_leaks``): redrawing hides such a leak,
         it does not mend it. Returns one record per round."""
-        from scipy.stats import binom
-
         from .attacks import parse_rows, run_picks
-        from .attacks.scoring import holm
+        from .attacks.scoring import cell_tests, holm
         from .structural import evaluation_subset, residual_ids
 
         def scored(picks: pd.DataFrame) -> pd.DataFrame:
-            cells = picks.groupby(["attack", "direction", "task", "source"], sort=True).agg(
-                n=("hit", "size"), hits=("hit", "sum"))
-            cells["p"] = binom.sf(np.ceil(cells["hits"].to_numpy()) - 1, cells["n"].to_numpy(), 0.2)
-            return cells
+            return cell_tests(picks, ["attack", "direction", "task", "source"])
 
         def named(cells: pd.DataFrame, keys) -> list[dict]:
             return [{"attack": a, "direction": d, "task": tk, "source": s, "hits": float(cells.loc[(a, d, tk, s), "hits"]),

@@ -282,11 +282,15 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     agg = agg[agg["picked"] > 0].sort_values("_order", kind="stable")
     agg["_factor"] = agg["attack"].map(lambda n: tests.get(n, 1)) * agg["_options"]
     ties = agg[[f"t{k}" for k in _TIES]].to_numpy(int)
-    clusters = _cluster_scores(picks, agg)
+    # coupled rows are one draw (per source and pooled; not the pooled constant letter, whose count is
+    # the best letter's over the task)
+    coupled = picks[picks["cluster"].notna()] if "cluster" in picks.columns else picks.iloc[:0]
+    clusters = cluster_scores(pd.concat([coupled, coupled.assign(source="ALL")], ignore_index=True),
+                              ["attack", "task", "source", "direction"])
     p = []
-    for r, (h, t) in enumerate(zip(agg["hits"], ties)):
-        cl, out = clusters.get(r, ([], {}))
-        p.append(tie_aware_p_counts(h, {k: v - out.get(k, 0) for k, v in zip(_TIES, t)}, cl))
+    for a, tk, src, d, h, t in zip(agg["attack"], agg["task"], agg["source"], agg["direction"], agg["hits"], ties):
+        cl, taken = ([], {}) if (a, src) == ("constant_letter", "ALL") else clusters.get((a, tk, src, d), ([], {}))
+        p.append(tie_aware_p_counts(h, {k: v - taken.get(k, 0) for k, v in zip(_TIES, t)}, cl))
     family = picks.drop_duplicates("attack").set_index("attack")["family"]
     df = pd.DataFrame({"attack": agg["attack"].to_numpy(), "family": agg["attack"].map(family).to_numpy(),
                        "task": agg["task"].to_numpy(), "source": agg["source"].to_numpy(),
@@ -314,39 +318,42 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     return df[COLUMNS]
 
 
-def _cluster_scores(picks: pd.DataFrame, agg: pd.DataFrame) -> dict:
-    """Per position ``r`` of the table's cells ``agg`` (after the choice of direction): the clusters of
-    coupled rows it holds (two or more picked rows of one cluster, :meth:`.batch.Batch.coupled`), each as
-    its score in units of 1/60 at each of the five places of the set, and how many of the cell's picked rows
-    of each tie size they take. A picks table without clusters (rows given without their batch) gives none;
-    nor does the pooled constant letter, whose count is the best letter's over the task."""
-    if "cluster" not in picks.columns or "slots" not in picks.columns:
+def cluster_scores(picks: pd.DataFrame, keys: list) -> dict:
+    """Per cell (a tuple of ``keys``): the clusters of coupled rows it holds (two or more picked rows of one
+    cluster, :meth:`.batch.Batch.coupled`), each as its score in units of 1/60 at each of the five places of
+    the set, and how many of the cell's picked rows of each tie size they take, for
+    :func:`tie_aware_p_counts`. A picks table without clusters (rows given without their batch) has none."""
+    if len(picks) == 0 or "cluster" not in picks.columns or "slots" not in picks.columns:
         return {}
-    c = picks[picks["_picked"] & picks["cluster"].notna() & picks["slots"].notna()]
-    if not len(c):
-        return {}
-    by_cell = {key: g for key, g in c.groupby(["attack", "task", "source", "direction"], sort=False)}
-    by_task = {key: g for key, g in c.groupby(["attack", "task", "direction"], sort=False)}
+    c = picks[picks["pick"].notna() & picks["cluster"].notna() & picks["slots"].notna()]
     out = {}
-    for r, (a, t, src, d) in enumerate(zip(agg["attack"], agg["task"], agg["source"], agg["direction"])):
-        if src == "ALL" and a == "constant_letter":
+    for key, rows in c.groupby(keys + ["cluster"], sort=False):
+        if len(rows) < 2:
             continue
-        g = by_task.get((a, t, d)) if src == "ALL" else by_cell.get((a, t, src, d))
-        if g is None:
-            continue
-        scores, taken = [], Counter()
-        for _, rows in g.groupby("cluster", sort=False):
-            if len(rows) < 2:
-                continue
-            sc = np.zeros(5, int)
-            for pick, slots in zip(rows["pick"], rows["slots"]):
-                for letter in pick:
-                    sc[slots.index(letter)] += 60 // len(pick)
-                taken[len(pick)] += 1
-            scores.append(sc)
-        if scores:
-            out[r] = (scores, dict(taken))
+        sc = np.zeros(5, int)
+        for pick, slots in zip(rows["pick"], rows["slots"]):
+            for letter in pick:
+                sc[slots.index(letter)] += 60 // len(pick)
+        scores, taken = out.setdefault(tuple(key[:-1]), ([], Counter()))
+        scores.append(sc)
+        taken.update(len(pk) for pk in rows["pick"])
     return out
+
+
+def cell_tests(picks: pd.DataFrame, keys: list) -> pd.DataFrame:
+    """Per cell of ``keys`` over picked rows: ``n`` rows, expected ``hits`` and ``p``, the exact one-sided
+    p-value of :func:`tie_aware_p_counts` (ties scored by expected hit, coupled rows one draw), with no
+    correction for comparisons. The test the option stage's adversarial filter runs."""
+    picks = picks[picks["pick"].notna()]
+    tied = picks["pick"].map(len)
+    cells = picks.assign(**{f"_t{k}": tied == k for k in _TIES}).groupby(keys, sort=True).agg(
+        n=("hit", "size"), hits=("hit", "sum"), **{f"t{k}": (f"_t{k}", "sum") for k in _TIES})
+    clusters = cluster_scores(picks, keys)
+    p = []
+    for key, h, t in zip(cells.index, cells["hits"], cells[[f"t{k}" for k in _TIES]].to_numpy(int)):
+        cl, taken = clusters.get(key if isinstance(key, tuple) else (key,), ([], {}))
+        p.append(tie_aware_p_counts(h, {k: v - taken.get(k, 0) for k, v in zip(_TIES, t)}, cl))
+    return cells[["n", "hits"]].assign(p=p)
 
 
 def attack_table(records: list[dict], *, iface=None, families=None, alpha: float = 0.05, fast: bool = False,
