@@ -9,14 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from resti_lib.options.population import (
-    FieldModel,
-    Marginal,
-    echo_counts,
-    empirical_kappa,
-    hierarchical_offsets,
-    select_knn,
-)
+from resti_lib.options.population import FieldModel, Marginal, empirical_kappa, hierarchical_offsets, select_knn
 
 
 def _lcv_by_hand(b, groups, k):
@@ -78,35 +71,6 @@ def test_a_row_draws_without_its_recordings_answers():
     for x in (0.5, 3.2):
         by_hand = np.mean([norm.cdf((x - m.b[j]) / m.h[j]) for j in range(10) if j != 7])
         assert norm.cdf(draw.maps[0].score(x)[0]) == pytest.approx(by_hand, abs=2e-3)
-
-
-def test_a_mixture_of_counts_is_the_even_mixture_of_their_kernels():
-    """A field fitted with counts (2, 5): each answer is two kernels of equal weight, as wide as the distance to
-    its 2nd and 5th nearest other answer (found here by sorting the distances). A row's map is then the mean,
-    over the other recordings' answers and over both kernels, of the kernel CDFs: summed here term by term.
-    The echo balance tries such mixtures between the likelihood's count and each wider one."""
-    b = np.array([0.0, 0.3, 0.35, 1.0, 1.6, 2.0, 2.1, 3.3, 4.0, 4.2, 5.5, 7.0])
-    groups = ["a", "a", "b", "c", "c", "d", "e", "f", "g", "h", "i", "j"]
-    fm = FieldModel.fit([f"r{i}" for i in range(12)], b[:, None], np.full((12, 1), 1e-3), None, knn=4,
-                        shrink=3.0, min_rows=2, groups=groups, field_knn={0: (2, 5)})
-    m = fm.fields[0]
-    assert m.k == (2, 5)
-
-    def kth(i, k):
-        return sorted(abs(b[i] - y) for y in b if y != b[i])[k - 1]
-
-    draw = fm.prepare("r0")  # recording a: rows 0 and 1 are out
-    others = range(2, 12)
-    for x in (-0.4, 0.5, 1.3, 2.05, 3.0, 4.1, 6.0, 7.5):
-        by_hand = np.mean([norm.cdf((x - b[j]) / kth(j, k)) for j in others for k in (2, 5)])
-        assert norm.cdf(draw.maps[0].score(x)[0]) == pytest.approx(by_hand, abs=2e-3)
-    # a single count, the same sum with one kernel per answer; the mixture lies between the two counts'
-    single = FieldModel.fit([f"r{i}" for i in range(12)], b[:, None], np.full((12, 1), 1e-3), None, knn=2,
-                            shrink=3.0, min_rows=2, groups=groups).prepare("r0")
-    x = 1.3
-    assert norm.cdf(single.maps[0].score(x)[0]) == pytest.approx(
-        np.mean([norm.cdf((x - b[j]) / kth(j, 2)) for j in others]), abs=2e-3)
-    assert echo_counts(2, [2, 3, 5]) == [(2, 3), 3, (2, 5), 5]
 
 
 def test_class_offsets_shrink_by_the_data_own_between_class_variance():

@@ -166,16 +166,16 @@ def select_knn(b, half, groups, k: int, k_max: int, *, bw: float = 1.0, max_dist
 class Marginal:
     """Adaptive KDE of one field's base values, as a map between values and standard normal scores.
 
-    ``b``: the base value of each row (in row order); ``h``: each row's kernel bandwidth, (n,), or (n, m)
-    for a mixture of ``m`` kernels per row with equal weights; ``grid``/``total``: the summed kernel CDF of
-    all rows on a grid; ``k``: the neighbour count of the bandwidths (a tuple of counts for a mixture).
+    ``b``: the base value of each row (in row order); ``h``: each row's kernel bandwidth;
+    ``grid``/``total``: the summed kernel CDF of all rows on a grid; ``k``: the neighbour count of the
+    bandwidths.
     """
 
     b: np.ndarray
     h: np.ndarray
     grid: np.ndarray
     total: np.ndarray
-    k: int | tuple = 4  # the neighbour count of the bandwidth (a tuple: one per kernel of a mixture)
+    k: int = 4  # the neighbour count of the bandwidth
     _own: dict = field(default_factory=dict, repr=False, compare=False)  # summed CDF of the rows left out, per set
 
     @property
@@ -190,30 +190,24 @@ class Marginal:
 
         ``k_max`` above ``k``: the neighbour count of the bandwidth is chosen among ``k`` .. ``k_max``
         (:func:`select_knn`) as the one whose density best predicts the answers of each recording
-        (``groups``, one label per value) from the other recordings. ``k`` a tuple of counts: each row is
-        a mixture, with equal weights, of one kernel per count (a narrow count keeps sharp modes, a wide
-        one the tails between them: :func:`echo_counts`)."""
+        (``groups``, one label per value) from the other recordings."""
         b = np.asarray(b, dtype=float)
         if b.size == 0 or not np.all(np.isfinite(b)):
             raise ValueError("a marginal needs finite values")
         half = np.broadcast_to(np.asarray(half_cell, dtype=float), b.shape)
         half = np.maximum(half, 1e-9)
-        if isinstance(k, (tuple, list)):
-            k = tuple(int(x) for x in k)
-        elif k_max > k:
+        if k_max > k:
             k = select_knn(b, half, groups, k, k_max, bw=bw, max_distinct=max_distinct)
-        ks = k if isinstance(k, tuple) else (int(k),)
-        h = np.column_stack([_bandwidths(b, half, kk, bw, max_distinct) for kk in ks])
-        lo, hi = float((b - 6.0 * h.max(axis=1)).min()), float((b + 6.0 * h.max(axis=1)).max())
+        h = _bandwidths(b, half, k, bw, max_distinct)
+        lo, hi = float((b - 6.0 * h).min()), float((b + 6.0 * h).max())
         g = np.linspace(lo, hi, grid)
         # the CDF of all rows on the grid, summed over distinct (value, bandwidth) pairs in chunks
+        pairs, counts = np.unique(np.column_stack([b, h]), axis=0, return_counts=True)
         total = np.zeros(grid)
-        for col in range(h.shape[1]):
-            pairs, counts = np.unique(np.column_stack([b, h[:, col]]), axis=0, return_counts=True)
-            for s in range(0, len(pairs), 512):
-                p, c = pairs[s:s + 512], counts[s:s + 512]
-                total += (ndtr((g[:, None] - p[None, :, 0]) / p[None, :, 1]) * c[None, :]).sum(axis=1) / h.shape[1]
-        return cls(b, h if h.shape[1] > 1 else h[:, 0], g, total, k)
+        for s in range(0, len(pairs), 512):
+            p, c = pairs[s:s + 512], counts[s:s + 512]
+            total += (ndtr((g[:, None] - p[None, :, 0]) / p[None, :, 1]) * c[None, :]).sum(axis=1)
+        return cls(b, h, g, total, int(k))
 
     # -------------------------------------------------------------------- maps
     def row_map(self, leave_out=None, lower: float | None = None, upper: float | None = None
@@ -230,9 +224,7 @@ class Marginal:
             key = out.tobytes()
             own = self._own.get(key)
             if own is None:  # kept per set left out: the rows of one recording leave out the same rows
-                hh = self.h.reshape(n, -1)[out]
-                own = self._own[key] = sum(ndtr((self.grid[:, None] - self.b[out][None, :]) / hh[None, :, c]).sum(axis=1)
-                                           for c in range(hh.shape[1])) / hh.shape[1]
+                own = self._own[key] = ndtr((self.grid[:, None] - self.b[out][None, :]) / self.h[out][None, :]).sum(axis=1)
             p = (self.total - own) / (n - out.size)
         if lower is not None or upper is not None:
             p_lo = float(np.interp(lower, self.grid, p)) if lower is not None else 0.0
@@ -379,14 +371,13 @@ class FieldModel:
                 bj = np.concatenate([bj, pseudo])
                 hj = np.concatenate([hj, np.full(m, hj.mean() if n else 0.1 * sd)])
             kj = (field_knn or {}).get(j)
-            fields.append(Marginal.fit(bj, hj, k=knn if kj is None else kj, k_max=max_knn if kj is None else 0,
+            fields.append(Marginal.fit(bj, hj, k=knn if kj is None else int(kj), k_max=max_knn if kj is None else 0,
                                        groups=labels + [f"pseudo:{i}" for i in range(m)]))
         covs, cs = [], np.zeros((n, 0))
         if W is not None and W.size and n >= min_rows:
             W = np.asarray(W, float).reshape(n, -1)
             keep = [j for j in range(W.shape[1]) if np.nanstd(W[:, j]) > 1e-9]
-            # covariates as wide as the widest field (a mixture's widest kernel)
-            kw = int(max([knn, *(max(np.atleast_1d(v)) for v in (field_knn or {}).values())]))
+            kw = max([knn, *(field_knn or {}).values()])  # covariates as wide as the widest field
             for j in keep:
                 covs.append(Marginal.fit(W[:, j], 1e-6, k=kw))
             if covs:
@@ -441,12 +432,11 @@ def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_
                   max_knn=0) -> "FieldModel":
     """The model of a group with the likelihood's bandwidth counts (:func:`select_knn`); where the candidate
     sets simulated from it leave the answer's echo score in one field more than :data:`ECHO_Z` standard
-    errors from its chance rank (:func:`echo_imbalance`), that field's count is widened to the count of
-    ``echo["ladder"]``, or mixture (:func:`echo_counts`), that leaves it nearest (the narrower on a tie),
-    field by field in order, the others held. Never narrower than the likelihood's count (a narrower
-    kernel prints other rows' answers as distractors more often), and not moved by differences within the
-    simulation's noise. The counts tried and their imbalance are in the model's ``echo`` (one entry per
-    field)."""
+    errors from its chance rank (:func:`echo_imbalance`), that field's count is widened to the one of
+    ``echo["ladder"]`` that leaves it nearest (the narrower count on a tie), field by field in order, the
+    others held. Never narrower than the likelihood's count (a narrower kernel prints other rows' answers as
+    distractors more often), and not moved by differences within the simulation's noise. The counts tried
+    and their imbalance are in the model's ``echo`` (one entry per field)."""
     kw = dict(shrink=shrink, min_rows=min_rows, prior_sd=prior_sd, prior_center=prior_center, groups=groups)
     best = cls.fit(rids, B, H, W, knn=knn, max_knn=max_knn, **kw)
     k0 = [f.k for f in best.fields]
@@ -460,33 +450,15 @@ def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_
         # count does not move: the first reading stands while earlier fields are widened
         best_z = float(z[j])
         tried.append({k0[j]: round(best_z, 3)})
-        for k in (k for k in echo_counts(k0[j], echo["ladder"]) if tried[j][k0[j]] > ECHO_Z):
-            fm = cls.fit(rids, B, H, W, knn=knn, field_knn={**counts, j: k}, **kw)
+        for k in (k for k in echo["ladder"] if k > k0[j] and tried[j][k0[j]] > ECHO_Z):
+            fm = cls.fit(rids, B, H, W, knn=knn, field_knn={**counts, j: int(k)}, **kw)
             zk = echo_imbalance(fm, rids, b, groups, echo, only=j)
-            tried[j][k] = round(float(zk[j]), 3)
+            tried[j][int(k)] = round(float(zk[j]), 3)
             if zk[j] < best_z - 1e-9:
                 best, best_z = fm, float(zk[j])
-                counts = {**counts, j: k}
-    best.echo = {"k": [f.k for f in best.fields], "likelihood_k": k0, "imbalance": tried}
+                counts = {**counts, j: int(k)}
+    best.echo = {"k": [int(f.k) for f in best.fields], "likelihood_k": [int(k) for k in k0], "imbalance": tried}
     return best
-
-
-def echo_counts(k0: int, ladder: list[int]) -> list:
-    """The bandwidth counts :func:`echo_balanced` tries for a field whose likelihood count is ``k0``, from the
-    narrowest: for each count ``k`` of the ladder above ``k0``, first the even mixture of ``k0`` and ``k``
-    (the tuple: the likelihood's kernel keeps the sharp modes of the answers, the wide one fills the tails
-    between them), then ``k`` alone.
-
-    A single count widens every scale at once. Where the answers are sharp modes over a broad spread (Waymo
-    box headings: vehicles along the roads, a few across), no single count balances the echo for a narrow
-    and a wide reader together: on v5's Waymo boxes (simulated, 3 seeds) count 6 leaves the readers at +0.9,
-    +0.8 and -1.8 standard errors (kernels 2%, 5% and 20% of the spread), 9 at +3.3, +3.4 and +1.7; the
-    mixture of 4 and 13 at +1.0, +1.0 and -0.5."""
-    out: list = []
-    for k in ladder:
-        if k > k0:
-            out += [(int(k0), int(k)), int(k)]
-    return out
 
 
 def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | None = None) -> np.ndarray:
