@@ -326,17 +326,27 @@ def cluster_scores(picks: pd.DataFrame, keys: list) -> dict:
     if len(picks) == 0 or "cluster" not in picks.columns or "slots" not in picks.columns:
         return {}
     c = picks[picks["pick"].notna() & picks["cluster"].notna() & picks["slots"].notna()]
-    out = {}
-    for key, rows in c.groupby(keys + ["cluster"], sort=False):
-        if len(rows) < 2:
-            continue
-        sc = np.zeros(5, int)
-        for pick, slots in zip(rows["pick"], rows["slots"]):
-            for letter in pick:
-                sc[slots.index(letter)] += 60 // len(pick)
-        scores, taken = out.setdefault(tuple(key[:-1]), ([], Counter()))
-        scores.append(sc)
-        taken.update(len(pk) for pk in rows["pick"])
+    if not len(c):
+        return {}
+    gid = c.groupby(keys + ["cluster"], sort=False).ngroup().to_numpy()
+    size = np.bincount(gid)
+    contrib = np.zeros((len(c), 5), int)   # each row's score (1/60 units) at each place of its set
+    tied = np.zeros(len(c), int)
+    for r, (pick, slots) in enumerate(zip(c["pick"].to_numpy(), c["slots"].to_numpy())):
+        tied[r] = len(pick)
+        for letter in pick:
+            contrib[r, slots.index(letter)] += 60 // len(pick)
+    score = np.zeros((size.size, 5), int)
+    np.add.at(score, gid, contrib)
+    ties = np.zeros((size.size, 6), int)
+    np.add.at(ties, (gid, tied), 1)
+    first = np.unique(gid, return_index=True)[1]
+    cells = c[keys].to_numpy(object)[first]
+    out: dict = {}
+    for g in np.flatnonzero(size >= 2):
+        scores, taken = out.setdefault(tuple(cells[g]), ([], Counter()))
+        scores.append(score[g])
+        taken.update({k: int(ties[g, k]) for k in range(1, 6) if ties[g, k]})
     return out
 
 
