@@ -166,26 +166,7 @@ def test_binom_p_by_hand():
     assert binom_p(0, 10) == pytest.approx(1.0)
 
 
-def _enumerated_p(hits: float, ties: list) -> float:
-    """P[sum of scores >= hits] by enumerating every hit/miss pattern (a second method)."""
-    total = 0.0
-    for pattern in itertools.product([0, 1], repeat=len(ties)):
-        prob, score = 1.0, 0.0
-        for hit, k in zip(pattern, ties):
-            prob *= (k / 5) if hit else (1 - k / 5)
-            score += hit / k
-        if score >= hits - 1e-9:
-            total += prob
-    return total
-
-
-@pytest.mark.parametrize("ties,hits", [([1, 1, 2, 3, 4, 5, 2, 1], 3.0), ([2, 2, 2, 3, 3, 4, 1, 1, 5, 5], 2.5),
-                                       ([1] * 9, 4.0), ([3, 3, 3, 4, 4, 2, 1], 7 / 3), ([5, 5, 5], 0.6)])
-def test_tie_aware_p_matches_enumeration(ties, hits):
-    assert tie_aware_p(hits, ties) == pytest.approx(_enumerated_p(hits, ties), rel=1e-9, abs=1e-12)
-
-
-def _enumerated_p_clusters(hits: float, ties: list, clusters: list) -> float:
+def _enumerated_p(hits: float, ties: list, clusters: tuple | list = ()) -> float:
     """P[sum of scores >= hits] by enumerating every hit/miss pattern of the single rows and every place of
     the answer in each cluster's set (a second method); a cluster is a list of picked place sets."""
     total = 0.0
@@ -201,6 +182,12 @@ def _enumerated_p_clusters(hits: float, ties: list, clusters: list) -> float:
     return total
 
 
+@pytest.mark.parametrize("ties,hits", [([1, 1, 2, 3, 4, 5, 2, 1], 3.0), ([2, 2, 2, 3, 3, 4, 1, 1, 5, 5], 2.5),
+                                       ([1] * 9, 4.0), ([3, 3, 3, 4, 4, 2, 1], 7 / 3), ([5, 5, 5], 0.6)])
+def test_tie_aware_p_matches_enumeration(ties, hits):
+    assert tie_aware_p(hits, ties) == pytest.approx(_enumerated_p(hits, ties), rel=1e-9, abs=1e-12)
+
+
 @pytest.mark.parametrize("ties,clusters,hits", [
     ([1, 1, 2], [[{0}, {0}], [{1}, {1}, {1}]], 3.0),           # rows of a cluster pick one place: all or none
     ([1, 3, 5], [[{0}, {1}], [{2, 3}, {2}]], 2.0),             # they pick different places, and ties
@@ -211,7 +198,7 @@ def test_tie_aware_p_with_clusters_matches_enumeration(ties, clusters, hits):
     with probability 1/5, and each of its rows scores by its own pick at that place."""
     scores = [[sum(60 // len(pk) for pk in cl if u in pk) for u in range(5)] for cl in clusters]
     got = tie_aware_p_counts(hits, Counter(ties), scores)
-    assert got == pytest.approx(_enumerated_p_clusters(hits, ties, clusters), rel=1e-9, abs=1e-12)
+    assert got == pytest.approx(_enumerated_p(hits, ties, clusters), rel=1e-9, abs=1e-12)
     if not ties:
         assert got == pytest.approx(1 - 0.8 ** 3 - 3 * 0.2 * 0.8 ** 2, rel=1e-9)
 
