@@ -245,6 +245,7 @@ def test_coupled_rows_count_as_one_draw():
     single_hits = sum(r["Candidates"][r["Answer"]] == min(r["Candidates"].values(), key=lambda v: float(v[:-1]))
                       for r in rows[2::3])
     assert cell["hits"] == 2 * pair_hits + single_hits
+    assert (cell["picked"], cell["draws"]) == (120, 80)  # 40 pairs, one draw each, and 40 rows alone
     # P[2 X + Y >= hits], X ~ Bin(40, 1/5) pairs, Y ~ Bin(40, 1/5) single rows
     want = sum(B.pmf(x, 40, 0.2) * B.sf(cell["hits"] - 2 * x - 1, 40, 0.2) for x in range(41))
     assert cell["p_value"] == pytest.approx(want, rel=1e-9)

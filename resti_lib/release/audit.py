@@ -25,7 +25,7 @@ from .. import LETTERS, paths
 from ..io.benchmark import Release, load_release
 from ..io.files import atomic_write_bytes
 from ..io.tables import write_table
-from ..options.attacks import FAMILIES, attack_table, headline, select
+from ..options.attacks import COLUMNS, FAMILIES, attack_table, headline, select
 from ..options.structural import residual_ids
 from ..tasks import interface
 from ..tasks import names as task_names
@@ -170,9 +170,7 @@ def attack_release(release: str | Path | Release, *, families="all", attacks="al
     # ``names`` is already the choice (keyed families included when named), so every family is allowed here
     table = attack_table(records, iface=iface, families=list(FAMILIES), attacks=names, alpha=alpha, progress=progress,
                          evaluate=evaluate) \
-        if records else pd.DataFrame(columns=["attack", "family", "task", "source", "n_rows", "coverage", "picked",
-                                              "hits", "accuracy", "chance", "p_value", "p_holm", "significant",
-                                              "min_detectable", "underpowered"])
+        if records else pd.DataFrame(columns=COLUMNS)
     suite = {"families": families if families not in (None, ["all"]) else "all", "fast": bool(fast),
              "attacks": attacks if attacks not in (None, ["all"]) else "all", "alpha": alpha, "rows": rows}
     return AttackRun(rel, table, skipped, suite)

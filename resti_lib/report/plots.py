@@ -24,7 +24,8 @@ def _save(fig, path: Path) -> Path:
 
 @styled
 def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_label: str = "") -> Path:
-    """Accuracy of every option-only attack per task (source ALL) with 95% CIs, against chance.
+    """Accuracy of every option-only attack per task (source ALL) with 95% CIs (over the independent draws:
+    coupled rows count once), against chance.
 
     One panel per task, two panels a row; red points are Holm-significant; the label of an attack
     that picks on part of the rows carries its coverage.
@@ -43,7 +44,9 @@ def attack_accuracy(table: pd.DataFrame, path: Path, *, title: str = "", alpha_l
         ax.set_visible(False)
     for ax, task in zip(axes.flat, tasks):
         g = t[t["task"] == task].reset_index(drop=True)
-        lo, hi = clopper_pearson(g["hits"], g["picked"])
+        # coupled rows are one draw (the table's ``draws``): the interval is that of the draws' accuracy
+        n = g["draws"].astype(float) if "draws" in g else g["picked"].astype(float)
+        lo, hi = clopper_pearson(g["accuracy"] * n, n)
         y = np.arange(len(g))[::-1]
         colors = ["#c0392b" if s else "#2c7fb8" for s in g["significant"]]
         ax.errorbar(g["accuracy"], y, xerr=[g["accuracy"] - lo, hi - g["accuracy"]], fmt="none",

@@ -3,7 +3,8 @@ the table, its headline and the strongest attack of a task.
 
 The table (:func:`attack_table`) has one row per (attack, task, source) and per (attack, task) with
 ``source == "ALL"``: ``n_rows`` (usable rows of the cell), ``coverage`` (fraction the attack applies
-to), ``picked``, ``hits`` (expected hits), ``accuracy`` (hits / picked), ``chance`` (1/5), ``p_value``
+to), ``picked``, ``draws`` (the picked rows as independent draws: a cluster of coupled rows is one, see
+:meth:`.batch.Batch.coupled`), ``hits`` (expected hits), ``accuracy`` (hits / picked), ``chance`` (1/5), ``p_value``
 (exact one-sided test of the expected hits under the null that the answer is any of the five options
 with equal probability, independently across draws, see :func:`tie_aware_p`: rows whose candidate sets are
 one draw, read from the strings, count as one, :meth:`.batch.Batch.coupled`; times the attack's own number
@@ -41,7 +42,7 @@ from .batch import Batch, kind_of, make_batch, parse_rows
 from .common import CHANCE, Directional, as_pick, direction_name, expected_hit
 from .registry import ATTACKS, FAMILIES, Attack, family_of, select
 
-COLUMNS = ["attack", "family", "task", "source", "n_rows", "coverage", "picked", "hits", "accuracy", "chance",
+COLUMNS = ["attack", "family", "task", "source", "n_rows", "coverage", "picked", "draws", "hits", "accuracy", "chance",
            "p_value", "p_holm", "significant", "min_detectable", "underpowered", "tied_rows", "direction",
            "large_effect"]
 PICK_COLUMNS = ["attack", "family", "direction", "rid", "task", "source", "pick", "answer", "tied", "hit", "cluster",
@@ -287,14 +288,15 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
     coupled = picks[picks["cluster"].notna()] if "cluster" in picks.columns else picks.iloc[:0]
     clusters = cluster_scores(pd.concat([coupled, coupled.assign(source="ALL")], ignore_index=True),
                               ["attack", "task", "source", "direction"])
-    p = []
+    p, draws = [], []
     for a, tk, src, d, h, t in zip(agg["attack"], agg["task"], agg["source"], agg["direction"], agg["hits"], ties):
         cl, taken = ([], {}) if (a, src) == ("constant_letter", "ALL") else clusters.get((a, tk, src, d), ([], {}))
         p.append(tie_aware_p_counts(h, {k: v - taken.get(k, 0) for k, v in zip(_TIES, t)}, cl))
+        draws.append(int(t.sum()) - sum(taken.values()) + len(cl))
     family = picks.drop_duplicates("attack").set_index("attack")["family"]
     df = pd.DataFrame({"attack": agg["attack"].to_numpy(), "family": agg["attack"].map(family).to_numpy(),
                        "task": agg["task"].to_numpy(), "source": agg["source"].to_numpy(),
-                       "n_rows": agg["n_rows"].to_numpy(int), "picked": agg["picked"].to_numpy(int),
+                       "n_rows": agg["n_rows"].to_numpy(int), "picked": agg["picked"].to_numpy(int), "draws": draws,
                        "hits": agg["hits"].to_numpy(float), "chance": CHANCE,
                        "p_value": np.minimum(1.0, np.array(p) * agg["_factor"].to_numpy()),
                        "tied_rows": ties[:, 1:].sum(1), "direction": agg["direction"].to_numpy(),
