@@ -189,3 +189,40 @@ def test_the_camera_videos_of_one_drive_get_translates_of_one_trajectory_set(mai
                 (r["Video"], angles, t["Video"], sums)
             checked += 1
     assert checked >= 6, checked
+
+
+def test_the_attack_suite_reads_each_drives_translated_sets_as_one_draw(main_run):
+    """The camera videos' trajectory sets that are translates of one set (found by hand above: the same
+    turns, totals moved by the difference of the answers) are one draw for the attack suite's exact test:
+    ``Batch.coupled``, which reads only the strings, puts each such pair in one cluster, and the slots it
+    gives map the sorted totals of one onto the other."""
+    import itertools
+    import json
+    from collections import defaultdict
+
+    from resti_lib.options.attacks.batch import make_batch, parse_rows
+    from resti_lib.tasks import interface
+
+    rows = [json.loads(x) for x in (main_run.out / "release" / "resti.jsonl").read_text().splitlines() if x.strip()]
+    batch, used = make_batch(parse_rows(rows), rows, iface=interface())
+    cluster, slots = batch.coupled()
+    at = {u: i for i, u in enumerate(used)}
+    drives = defaultdict(list)
+    for n, r in enumerate(rows):
+        if r["Task"] == "Trajectory Description" and r["Source"] == "Waymo" and _turns(r["Answer Detail"]) \
+                and n in at:
+            drives[(r["Video"].split("_camera")[0], r["time_start"], round(r["time_end"], 3))].append(n)
+    pairs = 0
+    for group in drives.values():
+        for a, b in itertools.combinations(group, 2):
+            ra, rb = rows[a], rows[b]
+            d = _total(rb["Answer Detail"]) - _total(ra["Answer Detail"])
+            if _turns(ra["Answer Detail"]) != _turns(rb["Answer Detail"]) or abs(d) >= 1.0:
+                continue
+            pairs += 1
+            i, j = at[a], at[b]
+            assert cluster[i] is not None and cluster[i] == cluster[j], (ra["Video"], rb["Video"])
+            ta = [_total(ra["Candidates"][k]) for k in slots[i]]
+            tb = [_total(rb["Candidates"][k]) for k in slots[j]]
+            assert np.allclose(np.add(ta, d), tb, atol=0.15 * ra["Answer Detail"].count("move forward") + 1e-9)
+    assert pairs >= 3, pairs
