@@ -60,10 +60,13 @@ def main() -> None:
     _, w_ver, c_ver = _timed(lambda: verify_release(rel))
     batch, w_parse, c_parse = _timed(lambda: make_batch(parse_rows(records), records, iface=interface())[0])
     _, w_obs, c_obs = _timed(lambda: batch.obs)
+    (cluster, _), w_cpl, c_cpl = _timed(batch.coupled)
     print("in process, by stage and family:")
     for name, w, c in (("load", w_load, c_load), ("verify", w_ver, c_ver), ("parse", w_parse, c_parse),
-                       ("observables", w_obs, c_obs)):
+                       ("observables", w_obs, c_obs), ("coupled rows", w_cpl, c_cpl)):
         print(f"  {name:18s} wall {w:6.2f} s  cpu {c:6.2f} s  {n / w:8.0f} rows/s")
+    clustered = [c for c in cluster if c is not None]
+    print(f"  ({len(set(clustered))} clusters of coupled rows hold {len(clustered)} of {n} rows: one draw each)")
     for fam in FAMILIES:
         names = select(fam)
         _, w, c = _timed(lambda names=names: [run_one(ATTACKS[a], batch) for a in names])
