@@ -171,9 +171,9 @@ def _set_of(p: ParsedRow, order: str) -> tuple | None:
 def _resolution(v) -> float:
     if isinstance(v, V.Scalar):
         return 0.5 * 10.0 ** -v.decimals * v.si_per_unit
-    moves = sum(1 for k, _ in v.segments if k == "move")
+    # a phrase prints one number per segment, in order: the total's resolution is its moves' rounding summed
     toks = V.number_tokens(v.text)
-    return moves * 0.5 * 10.0 ** -min((decimals(t) for t in toks), default=0)
+    return sum(0.5 * 10.0 ** -decimals(t) for (k, _), t in zip(v.segments, toks) if k == "move")
 
 
 def _one_draw(a: tuple | None, b: tuple | None) -> bool:
