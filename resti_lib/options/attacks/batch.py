@@ -106,7 +106,8 @@ class Batch:
 
     def _coupled(self) -> tuple[list, list]:
         n = len(self.rows)
-        slots = [_slot_order(p) for p in self.rows]
+        nums = [scalar_or_distance(p) for p in self.rows]
+        slots = [_slot_order(p, v) for p, v in zip(self.rows, nums)]
         cluster: list = [None] * n
         try:
             seqs = self.sequences()
@@ -126,7 +127,7 @@ class Batch:
             for i in idx:
                 by_cell[cells[i]].append(i)
             for members in by_cell.values():
-                sig = {i: _set_of(self.rows[i], slots[i]) for i in members}
+                sig = {i: _set_of(self.rows[i], slots[i], nums[i]) for i in members}
                 for a, i in enumerate(members):
                     for j in members[a + 1:]:
                         if _one_draw(sig[i], sig[j]):
@@ -142,16 +143,15 @@ class Batch:
         return cluster, slots
 
 
-def _slot_order(p: ParsedRow) -> str:
-    """The row's letters in slot order: by value for numbers (a scalar's value, a trajectory's total
-    distance), else by printed string."""
-    nums = scalar_or_distance(p)
+def _slot_order(p: ParsedRow, nums: dict | None) -> str:
+    """The row's letters in slot order: by value for numbers (``nums``, :func:`.features.scalar_or_distance`:
+    a scalar's value, a trajectory's total distance), else by printed string."""
     if nums is not None:
         return "".join(sorted(nums, key=lambda k: (nums[k], k)))
     return "".join(sorted(p.candidates, key=lambda k: (str(p.candidates[k]), k)))
 
 
-def _set_of(p: ParsedRow, order: str) -> tuple | None:
+def _set_of(p: ParsedRow, order: str, nums: dict | None) -> tuple | None:
     """(the set of printed strings, the values in slot order, each value's printed resolution: half its
     last digit, summed over the moves of a trajectory, the dimensions: a speed and an acceleration asked
     at one instant are two quantities); None for a label row (rows of one task offer one
@@ -159,7 +159,6 @@ def _set_of(p: ParsedRow, order: str) -> tuple | None:
     if all(isinstance(v, V.Label) for v in p.values.values()):
         return None
     strings = frozenset(str(p.candidates[k]) for k in order)
-    nums = scalar_or_distance(p)
     if nums is None:
         return strings, None, None, None
     x = np.array([float(nums[k]) for k in order])

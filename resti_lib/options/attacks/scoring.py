@@ -290,9 +290,9 @@ def summarize_picks(picks: pd.DataFrame, *, alpha: float = 0.05, tests: dict | N
                               ["attack", "task", "source", "direction"])
     p, draws = [], []
     for a, tk, src, d, h, t in zip(agg["attack"], agg["task"], agg["source"], agg["direction"], agg["hits"], ties):
-        cl, taken = ([], {}) if (a, src) == ("constant_letter", "ALL") else clusters.get((a, tk, src, d), ([], {}))
-        p.append(tie_aware_p_counts(h, {k: v - taken.get(k, 0) for k, v in zip(_TIES, t)}, cl))
-        draws.append(int(t.sum()) - sum(taken.values()) + len(cl))
+        pv, nd = _cell_p(h, t, None if (a, src) == ("constant_letter", "ALL") else clusters.get((a, tk, src, d)))
+        p.append(pv)
+        draws.append(nd)
     family = picks.drop_duplicates("attack").set_index("attack")["family"]
     df = pd.DataFrame({"attack": agg["attack"].to_numpy(), "family": agg["attack"].map(family).to_numpy(),
                        "task": agg["task"].to_numpy(), "source": agg["source"].to_numpy(),
@@ -361,11 +361,17 @@ def cell_tests(picks: pd.DataFrame, keys: list) -> pd.DataFrame:
     cells = picks.assign(**{f"_t{k}": tied == k for k in _TIES}).groupby(keys, sort=True).agg(
         n=("hit", "size"), hits=("hit", "sum"), **{f"t{k}": (f"_t{k}", "sum") for k in _TIES})
     clusters = cluster_scores(picks, keys)
-    p = []
-    for key, h, t in zip(cells.index, cells["hits"], cells[[f"t{k}" for k in _TIES]].to_numpy(int)):
-        cl, taken = clusters.get(key if isinstance(key, tuple) else (key,), ([], {}))
-        p.append(tie_aware_p_counts(h, {k: v - taken.get(k, 0) for k, v in zip(_TIES, t)}, cl))
+    p = [_cell_p(h, t, clusters.get(key if isinstance(key, tuple) else (key,)))[0]
+         for key, h, t in zip(cells.index, cells["hits"], cells[[f"t{k}" for k in _TIES]].to_numpy(int))]
     return cells[["n", "hits"]].assign(p=p)
+
+
+def _cell_p(hits: float, ties, coupled: tuple | None) -> tuple[float, int]:
+    """The exact p-value of a cell (its picked rows by tie size ``ties``, ``t1`` .. ``t5``; ``coupled``: its
+    entry of :func:`cluster_scores`, None without clusters) and its number of independent draws."""
+    scores, taken = coupled if coupled is not None else ([], {})
+    rest = {k: int(v) - taken.get(k, 0) for k, v in zip(_TIES, ties)}
+    return tie_aware_p_counts(hits, rest, scores), sum(rest.values()) + len(scores)
 
 
 def attack_table(records: list[dict], *, iface=None, families=None, alpha: float = 0.05, fast: bool = False,
