@@ -22,13 +22,25 @@ import numpy as np
 
 from ..errors import ContractError
 from ..sources.referents import frame_of_time, omni_boxes_at
+from ..sources.waymo import CAMERA_NAMES
 from .registry import MeasureContext, register_operator
 
-__all__ = ["MOUNT_CENTRES", "camera_up_at", "mount_relation", "relative_position"]
+__all__ = ["MOUNT_CENTRES", "NAME_LABEL", "camera_up_at", "mount_relation", "name_mount_yaw", "relative_position"]
 
 #: Bin centres of the mounted-camera labels (yaw of the optical axis in the vehicle frame, degrees).
 MOUNT_CENTRES = {"Front": 0.0, "Front-Left": 45.0, "Front-Right": -45.0, "Left": 90.0, "Right": -90.0,
                  "Back": 180.0, "Back-Left": 135.0, "Back-Right": -135.0}
+#: What the Waymo camera *name* says (CameraName enum 1..5): its mount label.
+NAME_LABEL = {1: "Front", 2: "Front-Left", 3: "Front-Right", 4: "Left", 5: "Right"}
+
+
+def name_mount_yaw(camera) -> float | None:
+    """The nominal mount yaw (degrees, vehicle frame, +Y left) of a Waymo camera named by its number or
+    enum name (``"2"``, 2 or ``"FRONT_LEFT"``: Front-Left, 45); None for a camera the enum does not name."""
+    s = str(camera).strip().upper()
+    n = int(s) if s.isdigit() else {v: k for k, v in CAMERA_NAMES.items()}.get(s)
+    label = NAME_LABEL.get(n)
+    return None if label is None else MOUNT_CENTRES[label]
 
 
 def _circ(a: float, b: float) -> float:

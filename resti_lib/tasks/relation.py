@@ -44,7 +44,7 @@ from ..adjudicate import Diagnosis
 from ..contract import Contract, base_contract, instant, object_pair
 from ..errors import ContractError
 from ..io.figures import save_figure
-from ..measure.relations import mount_relation, relative_position
+from ..measure.relations import NAME_LABEL, mount_relation, relative_position
 from ..sources.referents import (
     box_visibility,
     frame_of_time,
@@ -61,8 +61,6 @@ TASK = "Spatial Relation"
 MOUNT_LABELS = ["Front", "Front-Left", "Front-Right", "Left", "Right"]
 OMNI_LABELS = ["Left", "Right", "Closer", "Farther", "Directly above"]
 LABELS = {"Waymo": MOUNT_LABELS, "Omni6DPose": OMNI_LABELS}
-#: What the camera *name* would say (CameraName enum 1..5).
-NAME_LABEL = {1: "Front", 2: "Front-Left", 3: "Front-Right", 4: "Left", 5: "Right"}
 SAME_LABEL = "same label (case and spacing ignored)"
 
 

@@ -19,6 +19,7 @@ from ...geometry.fields import (
     rot,
     rotation_preimage,
 )
+from ...measure.relations import name_mount_yaw
 from ...rng import row_rng
 from ..plan import GroupModel, Reject, RowPlan, recorded_decimals
 from ..population import circular_cut, from_cut_line, hierarchical_offsets, on_cut_line
@@ -68,7 +69,17 @@ class BoxKind(KindBuilder):
             raise InputError(f"kinds.box.up_axis for {src} is {up_axis!r}: a box axis 0, 1 or 2, 'auto' (the axis "
                              "most concentrated over the group's answers) or null (isotropic rotations)",
                              file=OPTION_PARAMS, field=f"kinds.box.up_axis.{src}")
-        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}}
+        # the heading is drawn in the vehicle frame where the source names the camera's mount: the camera-frame
+        # heading plus the mount yaw of the camera the video names (what a blind reader knows), so the
+        # headings of cars along the road gather at one place whichever camera sees them
+        in_vehicle = per_source(kp.get("mount_frame", False), src, False)
+        if not isinstance(in_vehicle, bool):
+            raise InputError(f"kinds.box.mount_frame for {src} is {in_vehicle!r}: true (headings drawn in the vehicle "
+                             "frame of the camera the video names) or false", file=OPTION_PARAMS,
+                             field=f"kinds.box.mount_frame.{src}")
+        mount = {p.rid: float((name_mount_yaw(p.spec.obs.camera) if in_vehicle and p.spec.obs.camera else None) or 0.0)
+                 for p in ps}
+        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "mount": mount}
         cs = np.array([p.spec.value.center for p in ps], float)
         ds = np.array([p.spec.value.lwh for p in ps], float)
         front = cs[:, 2] > 0
@@ -98,7 +109,7 @@ class BoxKind(KindBuilder):
         coff = hierarchical_offsets([(p.spec.obs.subject_class,) for p in ps], lds, st.model["class_shrink"])
         cut = None
         if up_axis is not None:
-            yaws = np.array([box_yaw(info["R0"][p.rid], up_axis) for p in ps])
+            yaws = np.array([box_yaw(info["R0"][p.rid], up_axis) + mount[p.rid] for p in ps])
             cut = circular_cut(yaws)
             info["cut"] = cut
         # centre fields use one mode per group (rows behind the camera: cartesian in their own model)
@@ -114,7 +125,7 @@ class BoxKind(KindBuilder):
             row_f = [*f, *(lds[i] - coff[i])]
             row_h = [*hc, *hd]
             if up_axis is not None:
-                y = box_yaw(info["R0"][p.rid], up_axis)
+                y = box_yaw(info["R0"][p.rid], up_axis) + mount[p.rid]   # vehicle frame where mounted
                 info["yaw0"][p.rid] = y
                 row_f.append(float(on_cut_line(y, cut)))
                 row_h.append(0.005)
@@ -128,6 +139,8 @@ class BoxKind(KindBuilder):
         # the echo is read per field on the fields' scale, the edges as log metres (class offset back)
         off = np.zeros_like(F)
         off[:, 3:6] = np.asarray(coff, float)
+        if up_axis is not None:  # the heading back in the camera frame, as printed
+            off[:, 6] = [-mount[p.rid] for p in ps]
 
         def printed(c, sel, j):  # the heading as the rotation prints it (its cosine); the others as drawn
             return np.cos(np.radians(from_cut_line(c, cut))) if j == 6 else c
@@ -170,7 +183,7 @@ class BoxKind(KindBuilder):
             yaws = from_cut_line(B[:, 6], info["cut"])
             e = np.zeros(3)
             e[up_axis] = 1.0
-            rots = [R0 @ rot(e, float(V.wrap_degrees(y - info["yaw0"][p.rid]))) for y in yaws]
+            rots = [R0 @ rot(e, float(V.wrap_degrees(y - info["yaw0"][p.rid]))) for y in yaws]  # yaw0: same frame
         else:
             sig = np.radians(st.params["kinds"]["box"]["iso_sigma_deg"])
             Q = [Rotation.from_rotvec(rng.normal(0.0, sig, 3)).as_matrix() for _ in range(5)]
