@@ -250,6 +250,73 @@ def test_desk_objects_turn_about_their_up_axis(up_axis):
         assert p < 1e-3, hits / len(out)
 
 
+MOUNT_YAW = {1: 0.0, 2: 45.0, 3: -45.0, 4: 90.0, 5: -90.0}   # Waymo camera mounts, by hand (+Y left)
+
+
+def _road_box_rows(n=200, seed=5):
+    """Waymo boxes of cars seen by the five cameras (half of them by the front one): nine in ten drive along
+    the road (vehicle-frame heading 0 or 180 degrees, 3 degrees of spread), the rest at any heading. Each
+    box is written in its camera's OpenCV frame. Returns the rows and each row's camera-to-vehicle rotation."""
+    rng = np.random.default_rng(seed)
+    rows, to_vehicle = [], []
+    cams = rng.choice([1, 2, 3, 4, 5], size=n, p=[0.5, 0.15, 0.15, 0.1, 0.1])
+    for i, cam in enumerate(cams):
+        a = math.radians(MOUNT_YAW[int(cam)])
+        # camera axes in the vehicle frame: +X right, +Y down, +Z the optical axis
+        Rvc = np.column_stack([[math.sin(a), -math.cos(a), 0.0], [0.0, 0.0, -1.0], [math.cos(a), math.sin(a), 0.0]])
+        h = (rng.choice([0.0, 180.0]) + rng.normal(0.0, 3.0)) if rng.random() < 0.9 else rng.uniform(-180, 180)
+        R = Rvc.T @ Rotation.from_euler("z", h, degrees=True).as_matrix()
+        c = [rng.uniform(-6, 6), rng.uniform(0.5, 1.8), rng.uniform(8, 40)]
+        q = (f"At {i}.5 seconds, what is the oriented 3D bounding box of the parked sedan in an OpenCV camera "
+             f"frame (+X right, +Y down, +Z forward)?")
+        rows.append(_row(i, "3D Video Grounding", "Waymo", q, V.format_box(c, [4.6, 1.9, 1.5], R),
+                         video=f"{1000 + i}_000_020_000_camera_{cam}.mp4", t0=i + 0.5, t1=i + 0.5))
+        to_vehicle.append(Rvc)
+    return rows, to_vehicle
+
+
+@pytest.mark.parametrize("mounted", [True, False])
+def test_waymo_box_headings_follow_the_named_camera(mounted):
+    """A reader who knows the camera from the video name turns each candidate into the vehicle frame and takes
+    the one nearest the road's axis. With headings drawn in the vehicle frame (``mount_frame``) the distractors
+    of a side camera lie along the road as its answers do and that reader is at chance; drawn in the camera
+    frame from a population of mostly front-camera boxes, a side camera's distractors lie where the front
+    camera's cars are, across the road, and the reader finds the answer."""
+    rows, to_vehicle = _road_box_rows()
+    iface = Interface(deep_merge(IFACE.options, {"kinds": {"box": {"mount_frame": {"Waymo": mounted}}}}), IFACE.tasks)
+    out, _, _ = build_options(iface=iface, records=rows, seed=0)
+    by_rid = {r["ReSTI ID"]: r for r in out}
+    hits, n, near = 0.0, 0, []
+    for r0, Rvc in zip(rows, to_vehicle):
+        r = by_rid[r0["ReSTI ID"]]
+        if r0["Video"].endswith("camera_1.mp4"):
+            continue
+        off = {}
+        for k, s in r["Candidates"].items():
+            Rv = Rvc @ np.array(V.parse(s).R)
+            h = math.degrees(math.atan2(Rv[1, 0], Rv[0, 0]))
+            off[k] = min(abs((h + 90.0) % 180.0 - 90.0), 90.0)   # degrees off the road's axis
+            if k != r["Answer"]:
+                near.append(off[k] < 15.0)
+        best = min(off.values())
+        tied = [k for k, v in off.items() if v == best]
+        hits += (r["Answer"] in tied) / len(tied)
+        n += 1
+    p = binomtest(int(round(hits)), n, 0.2, alternative="greater").pvalue
+    if mounted:   # the side cameras' distractors lie along the road (their answers: about 0.9)
+        assert np.mean(near) > 0.6 and p > 0.01, (np.mean(near), hits / n)
+    else:
+        assert np.mean(near) < 0.4 and p < 1e-4, (np.mean(near), hits / n)
+
+
+def test_box_mount_frame_param_is_refused_by_name():
+    rows, _ = _road_box_rows(n=30)
+    iface = Interface(deep_merge(IFACE.options, {"kinds": {"box": {"mount_frame": {"Waymo": "yes"}}}}), IFACE.tasks)
+    with pytest.raises(InputError) as e:
+        build_options(iface=iface, records=rows, seed=0)
+    assert e.value.field == "kinds.box.mount_frame.Waymo" and "options.yaml" in str(e.value)
+
+
 def test_box_up_axis_param_is_refused_by_name():
     rows, _ = _desk_object_rows(n=30)
     iface = Interface(deep_merge(IFACE.options, {"kinds": {"box": {"up_axis": {"Omni6DPose": 5}}}}), IFACE.tasks)
