@@ -39,6 +39,16 @@ def test_mount_relation_from_extrinsic_yaw(yaw, label):
                                                   abs=1e-9)
 
 
+@pytest.mark.parametrize("camera,yaw", [(1, 0.0), ("2", 45.0), ("FRONT_RIGHT", -45.0), (4, 90.0), ("side_right", -90.0),
+                                         (9, None), ("rear", None)])
+def test_name_mount_yaw_reads_the_camera_enum(camera, yaw):
+    """Waymo's CameraName enum (1 FRONT, 2 FRONT_LEFT, 3 FRONT_RIGHT, 4 SIDE_LEFT, 5 SIDE_RIGHT) and the rig's
+    nominal mounts (vehicle +Y left), written out by hand; a camera the enum does not name has none."""
+    from resti_lib.measure.relations import name_mount_yaw
+
+    assert name_mount_yaw(camera) == yaw
+
+
 def test_relative_position_cases():
     up = np.array([0.0, -1.0, 0.0])  # camera looking horizontally: scene up = -Y in OpenCV axes
     eye, lwh = np.eye(3), np.array([0.2, 0.2, 0.1])  # B's box: local z = its height

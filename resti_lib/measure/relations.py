@@ -20,9 +20,9 @@ import math
 
 import numpy as np
 
-from ..errors import ContractError
+from ..errors import ContractError, InputError
 from ..sources.referents import frame_of_time, omni_boxes_at
-from ..sources.waymo import CAMERA_NAMES
+from ..sources.waymo import camera_number
 from .registry import MeasureContext, register_operator
 
 __all__ = ["MOUNT_CENTRES", "NAME_LABEL", "camera_up_at", "mount_relation", "name_mount_yaw", "relative_position"]
@@ -37,10 +37,11 @@ NAME_LABEL = {1: "Front", 2: "Front-Left", 3: "Front-Right", 4: "Left", 5: "Righ
 def name_mount_yaw(camera) -> float | None:
     """The nominal mount yaw (degrees, vehicle frame, +Y left) of a Waymo camera named by its number or
     enum name (``"2"``, 2 or ``"FRONT_LEFT"``: Front-Left, 45); None for a camera the enum does not name."""
-    s = str(camera).strip().upper()
-    n = int(s) if s.isdigit() else {v: k for k, v in CAMERA_NAMES.items()}.get(s)
-    label = NAME_LABEL.get(n)
-    return None if label is None else MOUNT_CENTRES[label]
+    try:
+        n = camera_number(camera)
+    except InputError:
+        return None
+    return MOUNT_CENTRES[NAME_LABEL[n]]
 
 
 def _circ(a: float, b: float) -> float:

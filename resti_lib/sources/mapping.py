@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from resti_lib.errors import InputError
+from resti_lib.sources.waymo import CAMERA_NAMES
 
 __all__ = ["SOURCES", "VideoSource", "load_mapping_table", "map_video"]
 
@@ -30,7 +31,7 @@ SOURCES = ("ScanNet", "Waymo", "Omni6DPose")
 _SCANNET = re.compile(r"^(scene\d{4}_\d{2})$")
 _WAYMO = re.compile(r"^(.+)_camera_(\d+|[A-Za-z_]+)$")
 _ROPE = re.compile(r"^(\d+)$")
-_CAMERA_NAMES = {"FRONT": 1, "FRONT_LEFT": 2, "FRONT_RIGHT": 3, "SIDE_LEFT": 4, "SIDE_RIGHT": 5}
+_CAMERA_NAMES = {name: n for n, name in CAMERA_NAMES.items()}   # FRONT -> 1, ...
 
 
 class VideoSource(NamedTuple):

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from ..sources.waymo import CAMERA_NAMES
 from .common import (
     T_WAYMO_FROM_CV,
     horizontal_heading_change,
@@ -38,7 +39,6 @@ from .common import (
 )
 
 N_FRAMES = 199
-CAMERA_NAMES = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
 #: The relation label of each mounted camera relative to the car's forward direction.
 CAMERA_RELATION = {1: "Front", 2: "Front-Left", 3: "Front-Right", 4: "Left", 5: "Right"}
 TYPE_NAMES = {1: "VEHICLE", 2: "PEDESTRIAN", 3: "SIGN", 4: "CYCLIST"}
