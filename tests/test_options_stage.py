@@ -1364,3 +1364,18 @@ def test_a_floor_slot_is_the_only_candidate_printed_at_the_floor():
     offered = [r for r in out if "0.01m" in r["Candidates"].values()]
     assert {r["ReSTI ID"] for r in offered if r["Candidates"][r["Answer"]] == "0.01m"} == floor
     assert len(offered) == 8 * (1 + 4)
+
+
+def test_every_kind_builds_after_one_kind_module_is_imported_alone():
+    """Importing one kind's module for a helper (a test of the box's depth exponent) registers that kind only;
+    the stage must still find every other kind's builder, whatever ran first in the process."""
+    import subprocess
+    import sys
+
+    code = ("import resti_lib.options.kinds.box\n"
+            "from resti_lib.options.kinds import builder_for\n"
+            "print(sorted(type(builder_for(k)).__name__ for k in ('scalar', 'angle', 'trajectory', 'box', 'pose', 'label')))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == str(sorted(["ScalarKind", "AngleKind", "TrajectoryKind", "BoxKind", "PoseKind",
+                                             "LabelKind"])), out.stdout

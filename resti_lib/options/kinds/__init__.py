@@ -50,9 +50,13 @@ def register_kind(kind: str):
 
 
 def builder_for(kind: str) -> KindBuilder:
-    if not BUILDERS:
+    """The builder of ``kind``. Every kind module is loaded on the first request for a kind not yet
+    registered (a module imported on its own, for one of its helpers, registers only its own kind)."""
+    if kind not in BUILDERS:
         for m in _MODULES:
             importlib.import_module(f"{__name__}.{m}")
+    if kind not in BUILDERS:
+        raise KeyError(f"no option builder for answer kind {kind!r} (kinds: {', '.join(sorted(BUILDERS))})")
     return BUILDERS[kind]
 
 
