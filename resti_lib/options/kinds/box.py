@@ -72,14 +72,13 @@ class BoxKind(KindBuilder):
         # the heading is drawn in the vehicle frame where the source names the camera's mount: the camera-frame
         # heading plus the mount yaw of the camera the video names (what a blind reader knows), so the
         # headings of cars along the road gather at one place whichever camera sees them
-        in_vehicle = per_source(kp.get("mount_frame", False), src, False)
+        in_vehicle = per_source(kp["mount_frame"], src, False)
         if not isinstance(in_vehicle, bool):
             raise InputError(f"kinds.box.mount_frame for {src} is {in_vehicle!r}: true (headings drawn in the vehicle "
                              "frame of the camera the video names) or false", file=OPTION_PARAMS,
                              field=f"kinds.box.mount_frame.{src}")
-        mount = {p.rid: float((name_mount_yaw(p.spec.obs.camera) if in_vehicle and p.spec.obs.camera else None) or 0.0)
-                 for p in ps}
-        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}, "mount": mount}
+        mount = {p.rid: (name_mount_yaw(p.spec.obs.camera) if in_vehicle else None) or 0.0 for p in ps}
+        info: dict = {"mode": {}, "R0": {}, "yaw0": {}, "class_off": {}}
         cs = np.array([p.spec.value.center for p in ps], float)
         ds = np.array([p.spec.value.lwh for p in ps], float)
         front = cs[:, 2] > 0
@@ -108,9 +107,9 @@ class BoxKind(KindBuilder):
         info["up_axis"] = up_axis
         coff = hierarchical_offsets([(p.spec.obs.subject_class,) for p in ps], lds, st.model["class_shrink"])
         cut = None
-        if up_axis is not None:
-            yaws = np.array([box_yaw(info["R0"][p.rid], up_axis) + mount[p.rid] for p in ps])
-            cut = circular_cut(yaws)
+        if up_axis is not None:  # each answer's heading, in the vehicle frame where mounted
+            info["yaw0"] = {p.rid: box_yaw(info["R0"][p.rid], up_axis) + mount[p.rid] for p in ps}
+            cut = circular_cut(list(info["yaw0"].values()))
             info["cut"] = cut
         # centre fields use one mode per group (rows behind the camera: cartesian in their own model)
         for i, p in enumerate(ps):
@@ -125,9 +124,7 @@ class BoxKind(KindBuilder):
             row_f = [*f, *(lds[i] - coff[i])]
             row_h = [*hc, *hd]
             if up_axis is not None:
-                y = box_yaw(info["R0"][p.rid], up_axis) + mount[p.rid]   # vehicle frame where mounted
-                info["yaw0"][p.rid] = y
-                row_f.append(float(on_cut_line(y, cut)))
+                row_f.append(float(on_cut_line(info["yaw0"][p.rid], cut)))
                 row_h.append(0.005)
             rows_f.append(row_f)
             rows_h.append(row_h)
@@ -183,7 +180,7 @@ class BoxKind(KindBuilder):
             yaws = from_cut_line(B[:, 6], info["cut"])
             e = np.zeros(3)
             e[up_axis] = 1.0
-            rots = [R0 @ rot(e, float(V.wrap_degrees(y - info["yaw0"][p.rid]))) for y in yaws]  # yaw0: same frame
+            rots = [R0 @ rot(e, float(V.wrap_degrees(y - info["yaw0"][p.rid]))) for y in yaws]
         else:
             sig = np.radians(st.params["kinds"]["box"]["iso_sigma_deg"])
             Q = [Rotation.from_rotvec(rng.normal(0.0, sig, 3)).as_matrix() for _ in range(5)]
