@@ -464,7 +464,8 @@ def echo_balanced(cls, rids, B, H, W, *, knn, shrink, min_rows, prior_sd, prior_
 def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | None = None) -> np.ndarray:
     """How far the answer's echo score sits from its chance rank in candidate sets simulated from ``fm``
     (the stage's draw without the constraints: spread ``echo["s"]``, quantile lattice ``echo["lattice"]``),
-    in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS`; one
+    in standard errors of one release, the largest over the reader kernels :data:`ECHO_SIM_WIDTHS` (and over
+    the readouts, where ``echo["printed"]`` gives several); one
     value per field, each field read on its own (``b``: (n, d) base values; ``only``: that field alone is read,
     the others are left at 0, as are the fields ``echo["fields"]`` does not name).
 
@@ -500,11 +501,11 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
             C[:, r, 1:] = rd.draw([(x, x)], float(echo["s"]), rng, n=4, batch=ECHO_SIM_REPS,
                                   lattice=echo.get("lattice"))[:, :, 0]
         C = C + off[sel, j][None, :, None]
-        if echo.get("printed") is not None:  # the values a reader sees: printed, on the reader's scale
-            C = echo["printed"](C, sel, j)
-        for w in ECHO_SIM_WIDTHS:
+        # the values a reader sees (printed, on the reader's scale): one readout, or a list of them (each is read)
+        reads = echo["printed"](C, sel, j) if echo.get("printed") is not None else C
+        for Cr, w in ((Cr, w) for Cr in (reads if isinstance(reads, list) else [reads]) for w in ECHO_SIM_WIDTHS):
             ranks = []
-            for c in C:  # read as the suite's answer_echo reads it (one kernel sum)
+            for c in Cr:  # read as the suite's answer_echo reads it (one kernel sum)
                 h = w * (float(np.std(c)) or 1.0)
                 fc, fa = kernel_sums(c, c, other, h, first=True)   # the answers are the first column
                 sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)

@@ -138,9 +138,15 @@ class BoxKind(KindBuilder):
         off[:, 3:6] = np.asarray(coff, float)
         if up_axis is not None:  # the heading back in the camera frame, as printed
             off[:, 6] = [-mount[p.rid] for p in ps]
+        off6 = off[ok][:, 6] if up_axis is not None else None   # the echo's rows are the members
 
-        def printed(c, sel, j):  # the heading as the rotation prints it (its cosine); the others as drawn
-            return np.cos(np.radians(from_cut_line(c, cut))) if j == 6 else c
+        def printed(c, sel, j):
+            """The heading read two ways: as the rotation prints it (its cosine, camera frame) and as a reader who
+            knows the camera turns it (the vehicle-frame angle, on the cut line; near 0 and 180 degrees, where
+            cars along the road are, the cosine is flat and shows no echo). The other fields as drawn."""
+            if j != 6:
+                return c
+            return [np.cos(np.radians(from_cut_line(c, cut))), c - off6[sel][None, :, None]]
 
         fm = st.fit_fields([p for p, k in zip(ps, ok) if k], F[ok], Hh[ok], None,
                            prior_sd=[0.1, 0.1, 0.3, 0.3, 0.3, 0.3, 30.0], echo=st.echo_spec(None, off[ok], printed))
