@@ -143,6 +143,34 @@ def test_the_bandwidth_widens_until_the_answers_echo_is_at_chance():
     assert abs(wide - 2.0) < 3 * se, (wide, se)
 
 
+def test_the_echo_is_read_on_every_readout_a_reader_has():
+    """A readout flat where the echo is (the cosine of a heading near 0 degrees; here: the sign, which tells
+    only the mode a value lies in, so the candidates of a mode all read alike) hides it: the likelihood's count
+    stays. Given that readout and the values themselves, the echo balance reads both, each one's imbalance as if
+    it were read alone (the largest of the two), and widens as it does on the values alone."""
+    from resti_lib.options.population import echo_imbalance
+
+    b, groups = _asked_twice()
+    rids = [f"r{i}" for i in range(len(b))]
+    flat = lambda C, sel, j: np.sign(C)       # noqa: E731
+    same = lambda C, sel, j: C                          # noqa: E731
+    both = lambda C, sel, j: [np.sign(C), C]    # noqa: E731
+
+    def fit(printed, **kw):
+        echo = {"ladder": [4, 6, 9, 14, 20], "s": 0.45, "lattice": None, "printed": printed}
+        return FieldModel.fit(rids, b[:, None], np.full((len(b), 1), 1e-3), None, shrink=3.0, groups=groups,
+                              knn=4, max_knn=32, echo=echo, **kw)
+
+    hidden, seen, read_both = fit(flat), fit(same), fit(both)
+    assert hidden.echo["k"] == hidden.echo["likelihood_k"]
+    assert seen.echo["k"][0] > seen.echo["likelihood_k"][0]
+    assert read_both.echo["k"] == seen.echo["k"]
+    spec = {"s": 0.45, "lattice": None}
+    z = {name: float(echo_imbalance(hidden, rids, b[:, None], groups, {**spec, "printed": f})[0])
+         for name, f in (("flat", flat), ("same", same), ("both", both))}
+    assert z["both"] == max(z["flat"], z["same"]) and z["same"] > 2.0 > z["flat"], z
+
+
 def test_each_field_of_a_joint_model_is_widened_on_its_own():
     """Two fields per answer: the first is the echo-prone quantity above (each recording asks it twice, 2%
     apart), the second a smooth spread with no repeats. The echo balance widens the first field's count
