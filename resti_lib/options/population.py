@@ -503,18 +503,19 @@ def echo_imbalance(fm: "FieldModel", rids, b, groups, echo: dict, only: int | No
         C = C + off[sel, j][None, :, None]
         # the values a reader sees (printed, on the reader's scale): one readout, or a list of them (each is read)
         reads = echo["printed"](C, sel, j) if echo.get("printed") is not None else C
-        for Cr, w in ((Cr, w) for Cr in (reads if isinstance(reads, list) else [reads]) for w in ECHO_SIM_WIDTHS):
-            ranks = []
-            for c in Cr:  # read as the suite's answer_echo reads it (one kernel sum)
-                h = w * (float(np.std(c)) or 1.0)
-                fc, fa = kernel_sums(c, c, other, h, first=True)   # the answers are the first column
-                sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)
-                # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
-                below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
-                ranks.append(below[ok])
-            r = np.concatenate(ranks)
-            if r.size:
-                z[j] = max(z[j], abs(float(r.mean()) - 2.0) / (math.sqrt(2.0) / math.sqrt(r.size / ECHO_SIM_REPS)))
+        for Cr in reads if isinstance(reads, list) else [reads]:
+            for w in ECHO_SIM_WIDTHS:
+                ranks = []
+                for c in Cr:  # read as the suite's answer_echo reads it (one kernel sum)
+                    h = w * (float(np.std(c)) or 1.0)
+                    fc, fa = kernel_sums(c, c, other, h, first=True)   # the answers are the first column
+                    sc = np.log(fa + 1e-12) - np.log(fc + 1e-12)
+                    # the answer's rank among the five (0: it scores lowest, the echo's pick; 2 by chance)
+                    below = (sc[:, 1:] < sc[:, :1] - 1e-9).sum(1) + 0.5 * (np.abs(sc[:, 1:] - sc[:, :1]) <= 1e-9).sum(1)
+                    ranks.append(below[ok])
+                r = np.concatenate(ranks)
+                if r.size:
+                    z[j] = max(z[j], abs(float(r.mean()) - 2.0) / (math.sqrt(2.0) / math.sqrt(r.size / ECHO_SIM_REPS)))
     return z
 
 
